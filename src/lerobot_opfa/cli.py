@@ -1,0 +1,32 @@
+"""`lerobot-opfa`: the package's command line; each area adds its own subcommands."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+
+from lerobot_opfa import demo
+from lerobot_opfa.hands import commands as hands_commands
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="lerobot-opfa", description=__doc__)
+    subparsers = parser.add_subparsers(dest="command", required=True)
+    hands_commands.add_commands(subparsers)
+    demo.add_command(subparsers)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args) or 0
+    except (ValueError, FileNotFoundError, KeyError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,104 @@
+"""`lerobot-opfa hands ...`: list the registered hands, draw their clouds, check a spec."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from lerobot_opfa.hands import validate
+from lerobot_opfa.hands.plot import plot_clouds
+from lerobot_opfa.hands.registry import builtin_hands, hand_models_dir, load_hand
+from lerobot_opfa.hands.universal import universal_table_markdown
+
+
+def add_commands(subparsers: argparse._SubParsersAction) -> None:
+    hands = subparsers.add_parser("hands", help="hand models: list, clouds, pictures, checks").add_subparsers(
+        dest="hands_command", required=True
+    )
+    listing = hands.add_parser("list", help="the built-in hands")
+    listing.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    listing.set_defaults(func=_list)
+
+    hands.add_parser("joints", help="the universal joint table").set_defaults(
+        func=lambda _: print(universal_table_markdown())
+    )
+
+    cloud = hands.add_parser("cloud", help="point clouds of random reachable states, saved as .npz")
+    cloud.add_argument("hand", help="built-in name or path to a spec.yaml")
+    cloud.add_argument("--n-points", type=int, default=1024)
+    cloud.add_argument("--batch", type=int, default=16)
+    cloud.add_argument("--seed", type=int, default=0)
+    cloud.add_argument("--out", type=Path, required=True)
+    cloud.set_defaults(func=_cloud)
+
+    show = hands.add_parser("show", help="a picture of the hand's cloud, coloured by finger")
+    show.add_argument("hand")
+    show.add_argument("--out", type=Path, required=True)
+    show.add_argument("--joints", choices=["open", "grasp", "random"], default="open")
+    show.add_argument("--n-points", type=int, default=2048)
+    show.add_argument("--seed", type=int, default=0)
+    show.set_defaults(func=_show)
+
+    check = hands.add_parser("check", help="check a spec against its model (FK vs MuJoCo, couplings, poses)")
+    check.add_argument("hand")
+    check.add_argument("--png")
+    check.set_defaults(
+        func=lambda args: validate.main([args.hand] + (["--png", args.png] if args.png else []))
+    )
+
+
+def _list(args: argparse.Namespace) -> int:
+    rows = []
+    for name in builtin_hands():
+        hand = load_hand(name)
+        rows.append(
+            {
+                "name": name,
+                "kind": hand.spec.kind,
+                "dof": hand.dof,
+                "joints": len(hand.chain_joint_names),
+                "fingers": hand.spec.fingers,
+                "source": str(hand.spec.model_path.relative_to(hand_models_dir().parent)),
+                "description": hand.spec.description,
+            }
+        )
+    if args.json:
+        print(json.dumps(rows, indent=2))
+        return 0
+    print(f"{'name':<16}{'kind':<9}{'dof':>4}{'joints':>8}  {'fingers':<40}source")
+    for r in rows:
+        fingers = ",".join(r["fingers"])
+        print(f"{r['name']:<16}{r['kind']:<9}{r['dof']:>4}{r['joints']:>8}  {fingers:<40}{r['source']}")
+    return 0
+
+
+def _cloud(args: argparse.Namespace) -> int:
+    hand = load_hand(args.hand)
+    q = hand.sample_joints(args.batch, torch.Generator().manual_seed(args.seed))
+    cloud = hand.point_cloud(q, args.n_points, seed=args.seed)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    np.savez(
+        args.out,
+        points=cloud.points.cpu().numpy().astype(np.float32),
+        labels=cloud.labels.cpu().numpy().astype(np.int64),
+        joints=cloud.joints.cpu().numpy().astype(np.float32),
+        joint_names=np.array(hand.joint_names),
+    )
+    print(f"{args.out}: {args.batch} clouds of {args.n_points} points of '{hand.name}' ({hand.dof} DoF)")
+    return 0
+
+
+def _show(args: argparse.Namespace) -> int:
+    hand = load_hand(args.hand)
+    if args.joints == "random":
+        q = hand.sample_joints(1, torch.Generator().manual_seed(args.seed))
+    else:
+        q = hand.pose(args.joints)[None]
+    cloud = hand.point_cloud(q, args.n_points, seed=args.seed)
+    clouds = {args.joints: (cloud.points[0].cpu().numpy(), cloud.labels[0].cpu().numpy())}
+    print(plot_clouds(clouds, args.out, title=f"{hand.name}: {hand.spec.description}"))
+    return 0

@@ -1,0 +1,220 @@
+"""`HandModel`: a hand's batched forward kinematics, reachable-state sampling and surface point clouds.
+
+Couplings are folded into one affine map from the actuated joints to every model joint, so FK of a
+batch is one matmul plus one pytorch-kinematics call. Surface points are drawn once per link in the
+link's own frame; a cloud for a batch of poses is then one gathered rigid transform per point.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from lerobot_opfa.hands.geometry import allocate_points, sample_surface
+from lerobot_opfa.hands.model_file import load_model_file
+from lerobot_opfa.hands.spec import HandSpec, HandSpecError
+from lerobot_opfa.hands.universal import UNIVERSAL_INDEX, UNIVERSAL_JOINTS
+
+DEFAULT_MIN_POINTS_PER_LINK = 8
+
+
+@dataclass(frozen=True)
+class SurfaceSamples:
+    """Points fixed on the hand's surface: (N, 3) in their link's frame, their link, their (u, v) label."""
+
+    local_points: torch.Tensor
+    link_index: torch.Tensor
+    labels: torch.Tensor
+
+
+@dataclass(frozen=True)
+class HandCloud:
+    points: torch.Tensor
+    """(B, N, 3) in the hand's base frame, metres."""
+    labels: torch.Tensor
+    """(B, N, 2) semantic label (finger u, segment v) of each point."""
+    joints: torch.Tensor
+    """(B, dof) the actuated joint values that produced the cloud."""
+
+
+class HandModel:
+    """One end-effector, built from its spec: `HandModel.from_spec(path)` or `registry.load_hand(name)`."""
+
+    def __init__(
+        self, spec: HandSpec, device: torch.device | str = "cpu", dtype: torch.dtype = torch.float32
+    ):
+        try:
+            self.model_file = load_model_file(spec.model_path)
+        except ValueError as err:
+            raise HandSpecError(spec.path, "model", str(err)) from err
+        spec.check_against(
+            self.model_file.joint_names, self.model_file.link_names, set(self.model_file.link_meshes)
+        )
+        self.spec = spec
+        self.device, self.dtype = torch.device(device), dtype
+
+        chain_joints = self.model_file.joint_names
+        lower, upper = (
+            torch.tensor(x, dtype=torch.float64) for x in self.model_file.chain.get_joint_limits()
+        )
+        actuated = [chain_joints.index(j) for j in spec.actuated_joints]
+        # q_all = q @ coupling_matrix.T + coupling_offset, built in the spec's source-first order.
+        matrix = torch.zeros(len(chain_joints), len(actuated), dtype=torch.float64)
+        offset = torch.zeros(len(chain_joints), dtype=torch.float64)
+        matrix[actuated, torch.arange(len(actuated))] = 1.0
+        for coupling in spec.couplings.values():
+            j, s = chain_joints.index(coupling.joint), chain_joints.index(coupling.source)
+            matrix[j] = coupling.scale * matrix[s]
+            offset[j] = coupling.scale * offset[s] + coupling.offset
+        self._coupling_matrix, self._coupling_offset = matrix, offset
+        self._lower_all, self._upper_all = lower, upper
+        self._lower, self._upper = lower[actuated], upper[actuated]
+        if not torch.all(self._upper > self._lower):
+            bad = [
+                spec.actuated_joints[i] for i in torch.nonzero(self._upper <= self._lower).flatten().tolist()
+            ]
+            raise HandSpecError(
+                spec.path, "joints", f"joint(s) {bad} have no range in the model (upper <= lower)"
+            )
+        for pose, values in spec.poses.items():
+            for joint, value in values.items():
+                i = spec.actuated_joints.index(joint)
+                if not self._lower[i] - 1e-6 <= value <= self._upper[i] + 1e-6:
+                    raise HandSpecError(
+                        spec.path,
+                        f"poses.{pose}.{joint}",
+                        f"{value} is outside the model's limits [{self._lower[i]:.4f}, {self._upper[i]:.4f}]",
+                    )
+
+        self.link_names = sorted(self.model_file.link_meshes, key=self.model_file.link_names.index)
+        self._samples: dict[tuple[int, int, int], SurfaceSamples] = {}
+        self.to(device, dtype)
+
+    @classmethod
+    def from_spec(cls, path: str | Path, **kwargs) -> HandModel:
+        return cls(HandSpec.load(path), **kwargs)
+
+    def to(self, device: torch.device | str | None = None, dtype: torch.dtype | None = None) -> HandModel:
+        self.device = torch.device(device) if device is not None else self.device
+        self.dtype = dtype or self.dtype
+        self.chain = self.model_file.chain.to(device=self.device, dtype=self.dtype)
+        cast = dict(device=self.device, dtype=self.dtype)
+        self.coupling_matrix, self.coupling_offset = (
+            self._coupling_matrix.to(**cast),
+            self._coupling_offset.to(**cast),
+        )
+        self.lower, self.upper = self._lower.to(**cast), self._upper.to(**cast)
+        self.lower_all, self.upper_all = self._lower_all.to(**cast), self._upper_all.to(**cast)
+        self._samples.clear()
+        return self
+
+    # --- joints -------------------------------------------------------------------------------------
+    @property
+    def name(self) -> str:
+        return self.spec.name
+
+    @property
+    def dof(self) -> int:
+        return len(self.spec.joints)
+
+    @property
+    def joint_names(self) -> list[str]:
+        """Actuated model joints, in the order of the joint vector."""
+        return self.spec.actuated_joints
+
+    @property
+    def chain_joint_names(self) -> list[str]:
+        """Every movable model joint, in pytorch-kinematics' order (the order of `expand`)."""
+        return self.model_file.joint_names
+
+    @property
+    def universal_names(self) -> list[str]:
+        return [self.spec.joints[j] for j in self.joint_names]
+
+    @property
+    def universal_index(self) -> torch.Tensor:
+        """Position of each actuated joint in the universal joint table."""
+        return torch.tensor([UNIVERSAL_INDEX[u] for u in self.universal_names], device=self.device)
+
+    @property
+    def prismatic_mask(self) -> torch.Tensor:
+        return torch.tensor(
+            [UNIVERSAL_JOINTS[UNIVERSAL_INDEX[u]].kind == "prismatic" for u in self.universal_names]
+        )
+
+    def pose(self, name: str) -> torch.Tensor:
+        """A named pose of the spec as a joint vector (dof,); unlisted joints are 0, clipped to limits."""
+        if name not in self.spec.poses:
+            raise KeyError(f"hand '{self.name}' has no pose '{name}'; it has {sorted(self.spec.poses)}")
+        values = self.spec.poses[name]
+        q = torch.tensor([values.get(j, 0.0) for j in self.joint_names], device=self.device, dtype=self.dtype)
+        return q.clamp(self.lower, self.upper)
+
+    def expand(self, q: torch.Tensor) -> torch.Tensor:
+        """(B, dof) actuated joints -> (B, n_chain_joints) every model joint, couplings applied."""
+        self._check_joints(q)
+        return q @ self.coupling_matrix.T + self.coupling_offset
+
+    def sample_joints(self, batch_size: int, generator: torch.Generator | None = None) -> torch.Tensor:
+        """Uniformly random reachable states within the model's limits, (B, dof)."""
+        u = torch.rand(batch_size, self.dof, generator=generator, dtype=self.dtype, device="cpu").to(
+            self.device
+        )
+        return self.lower + u * (self.upper - self.lower)
+
+    def _check_joints(self, q: torch.Tensor) -> None:
+        if q.ndim != 2 or q.shape[1] != self.dof:
+            raise ValueError(
+                f"hand '{self.name}' expects joints of shape (B, {self.dof}) {self.joint_names}, "
+                f"got {tuple(q.shape)}"
+            )
+
+    # --- kinematics ---------------------------------------------------------------------------------
+    def forward_kinematics(self, q: torch.Tensor) -> torch.Tensor:
+        """(B, dof) -> (B, L, 4, 4) base-frame poses of the links in `link_names` (those with geometry)."""
+        return self.link_poses(q, self.link_names)
+
+    def link_poses(self, q: torch.Tensor, links: list[str]) -> torch.Tensor:
+        """(B, dof) -> (B, len(links), 4, 4) base-frame poses of any model links."""
+        frames = self.chain.forward_kinematics(self.expand(q.to(self.device, self.dtype)))
+        return torch.stack([frames[link].get_matrix() for link in links], dim=1)
+
+    # --- point clouds -------------------------------------------------------------------------------
+    def surface_samples(
+        self, n_points: int, seed: int = 0, min_per_link: int = DEFAULT_MIN_POINTS_PER_LINK
+    ) -> SurfaceSamples:
+        """`n_points` surface points fixed to the links, the same for every pose (cached per seed)."""
+        key = (n_points, seed, min_per_link)
+        if key not in self._samples:
+            if n_points < len(self.link_names):
+                raise ValueError(
+                    f"hand '{self.name}' has {len(self.link_names)} links with geometry; "
+                    "n_points must be at least that"
+                )
+            meshes = [self.model_file.link_meshes[link] for link in self.link_names]
+            counts = allocate_points(np.array([m.area for m in meshes]), n_points, min_per_link)
+            rng = np.random.default_rng(seed)
+            points = np.concatenate([sample_surface(m, c, rng) for m, c in zip(meshes, counts, strict=True)])
+            link_index = np.repeat(np.arange(len(meshes)), counts)
+            labels = np.array([self.spec.links[link] for link in self.link_names])[link_index]
+            self._samples[key] = SurfaceSamples(
+                torch.tensor(points, device=self.device, dtype=self.dtype),
+                torch.tensor(link_index, device=self.device),
+                torch.tensor(labels, device=self.device),
+            )
+        return self._samples[key]
+
+    def point_cloud(self, q: torch.Tensor, n_points: int = 1024, seed: int = 0) -> HandCloud:
+        """Surface cloud of the hand at each configuration: points (B, N, 3), labels (B, N, 2)."""
+        samples = self.surface_samples(n_points, seed)
+        poses = self.forward_kinematics(q)[:, samples.link_index]  # (B, N, 4, 4)
+        points = torch.einsum("bnij,nj->bni", poses[..., :3, :3], samples.local_points) + poses[..., :3, 3]
+        labels = samples.labels.expand(points.shape[0], -1, -1)
+        return HandCloud(points, labels, q.to(self.device, self.dtype))
+
+    def __repr__(self) -> str:
+        joints, links = len(self.chain_joint_names), len(self.link_names)
+        return f"HandModel(name={self.name!r}, dof={self.dof}, joints={joints}, links={links})"

@@ -1,0 +1,97 @@
+"""A URDF or MJCF file read once: its pytorch-kinematics chain, link meshes and a MuJoCo-ready XML.
+
+Both formats end up in the same three forms, so everything downstream (FK, point clouds, simulation)
+treats a user's model exactly like a built-in one.
+"""
+
+from __future__ import annotations
+
+import io
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from pathlib import Path
+
+import mujoco
+import pytorch_kinematics as pk
+import trimesh
+import yourdfpy
+
+from lerobot_opfa.hands.geometry import mjcf_link_meshes, resolve_urdf_mesh, urdf_link_meshes
+
+
+class ModelFileError(ValueError):
+    """A model file that is missing or does not parse."""
+
+
+@dataclass
+class ModelFile:
+    path: Path
+    chain: pk.Chain
+    link_meshes: dict[str, trimesh.Trimesh]
+    mujoco_xml: str
+    mujoco_assets: dict[str, bytes]
+
+    @property
+    def joint_names(self) -> list[str]:
+        return self.chain.get_joint_parameter_names()
+
+    @property
+    def link_names(self) -> list[str]:
+        return self.chain.get_link_names()
+
+
+def load_model_file(path: Path) -> ModelFile:
+    if not path.is_file():
+        raise ModelFileError(f"{path}: model file not found")
+    try:
+        return _load_urdf(path) if path.suffix.lower() == ".urdf" else _load_mjcf(path)
+    except ModelFileError:
+        raise
+    except Exception as err:  # parsers raise many types; all mean "this file is not a usable model"
+        raise ModelFileError(
+            f"{path}: does not parse as {'URDF' if path.suffix == '.urdf' else 'MJCF'}: {err}"
+        ) from err
+
+
+def _load_urdf(path: Path) -> ModelFile:
+    text = path.read_bytes()
+    robot = yourdfpy.URDF.load(str(path), build_scene_graph=False, load_meshes=False)
+    chain = pk.build_chain_from_urdf(text)
+    xml, assets = _urdf_for_mujoco(text, path)
+    return ModelFile(path, chain, urdf_link_meshes(robot, path), xml, assets)
+
+
+def _urdf_for_mujoco(text: bytes, path: Path) -> tuple[str, dict[str, bytes]]:
+    """MuJoCo reads URDF itself, but strips mesh directories, does not know `package://` and fuses fixed
+    links away. Give it every mesh as an STL asset and keep every link a body."""
+    root = ET.fromstring(text)
+    assets: dict[str, bytes] = {}
+    for i, mesh in enumerate(root.iter("mesh")):
+        name = f"mesh_{i}.stl"
+        buffer = io.BytesIO()
+        trimesh.load(resolve_urdf_mesh(mesh.get("filename"), path), force="mesh").export(
+            buffer, file_type="stl"
+        )
+        assets[name] = buffer.getvalue()
+        mesh.set("filename", name)
+    for old in root.findall("mujoco"):
+        root.remove(old)
+    extension = ET.SubElement(root, "mujoco")
+    ET.SubElement(extension, "compiler", fusestatic="false", discardvisual="false", balanceinertia="true")
+    return ET.tostring(root, encoding="unicode"), assets
+
+
+def _load_mjcf(path: Path) -> ModelFile:
+    # pytorch-kinematics keys its joint-type map by MuJoCo enums, which mujoco>=4 no longer hashes like
+    # the ints its models return; add int keys so both work.
+    pk.mjcf.JOINT_TYPE_MAP.update({int(k): v for k, v in list(pk.mjcf.JOINT_TYPE_MAP.items())})
+    model = mujoco.MjModel.from_xml_path(str(path))
+    spec = mujoco.MjSpec.from_file(str(path))
+    xml = spec.to_xml()
+    assets = {}
+    for mesh in spec.meshes:
+        if mesh.file:
+            file = (path.parent / (spec.meshdir or "") / mesh.file).resolve()
+            assets[mesh.file] = file.read_bytes()
+    chain = pk.build_chain_from_mjcf(xml, assets=assets)
+    return ModelFile(path, chain, mjcf_link_meshes(model), xml, assets)

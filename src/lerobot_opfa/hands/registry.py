@@ -1,0 +1,49 @@
+"""Which hands exist: the built-in models shipped in `hand_models/` plus any spec a user names."""
+
+from __future__ import annotations
+
+from functools import cache
+from pathlib import Path
+
+from lerobot_opfa.hands.model import HandModel
+from lerobot_opfa.hands.spec import HandSpec
+
+
+def hand_models_dir() -> Path:
+    """`hand_models/` of the source tree (editable installs) or the copy packed into the wheel."""
+    packaged = Path(__file__).resolve().parent.parent / "hand_models"
+    return packaged if packaged.is_dir() else Path(__file__).resolve().parents[3] / "hand_models"
+
+
+def builtin_hands() -> dict[str, Path]:
+    """Built-in hand name -> spec path."""
+    return {p.parent.name: p for p in sorted(hand_models_dir().glob("*/spec.yaml"))}
+
+
+def resolve_spec_path(hand: str | Path) -> Path:
+    """A built-in name or a path to a `spec.yaml` (or a folder holding one)."""
+    builtins = builtin_hands()
+    if str(hand) in builtins:
+        return builtins[str(hand)]
+    path = Path(hand)
+    if path.is_dir():
+        path = path / "spec.yaml"
+    if path.is_file():
+        return path
+    raise ValueError(
+        f"unknown hand '{hand}': not a built-in ({', '.join(builtins)}) and not a spec.yaml path"
+    )
+
+
+def load_spec(hand: str | Path) -> HandSpec:
+    return HandSpec.load(resolve_spec_path(hand))
+
+
+@cache
+def _load_hand_cached(spec_path: Path, device: str) -> HandModel:
+    return HandModel.from_spec(spec_path, device=device)
+
+
+def load_hand(hand: str | Path, device: str = "cpu") -> HandModel:
+    """A `HandModel` for a built-in name or a spec path; parsed models are cached per process."""
+    return _load_hand_cached(resolve_spec_path(hand).resolve(), str(device))

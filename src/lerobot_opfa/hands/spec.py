@@ -1,0 +1,238 @@
+"""`spec.yaml`: how lerobot-opfa reads a hand model (joint mapping, couplings, link semantics, poses).
+
+The spec is checked twice: on its own when loaded (`HandSpec.load`) and against the model's joints and
+links when a `HandModel` is built (`HandSpec.check_against`). Every error names the file and the field.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import yaml
+
+from lerobot_opfa.hands.universal import FINGERS, UNIVERSAL_INDEX
+
+KINDS = ("hand", "gripper")
+MODEL_SUFFIXES = (".urdf", ".xml", ".mjcf")
+
+
+class HandSpecError(ValueError):
+    """A spec that cannot describe its model; the message names the file and the field."""
+
+    def __init__(self, path: Path | str, field_name: str, message: str):
+        super().__init__(f"{path}: field '{field_name}': {message}")
+        self.path = Path(path)
+        self.field = field_name
+
+
+@dataclass(frozen=True)
+class Coupling:
+    """q[joint] = scale * q[source] + offset (a mimic joint, tendon or linkage made linear)."""
+
+    joint: str
+    source: str
+    scale: float = 1.0
+    offset: float = 0.0
+
+
+@dataclass(frozen=True)
+class HandSpec:
+    path: Path
+    name: str
+    kind: str
+    model_path: Path
+    description: str
+    joints: dict[str, str]
+    """Actuated model joint -> universal joint name, in the order of the hand's joint vector."""
+    couplings: dict[str, Coupling]
+    """Coupled model joint -> its coupling, in an order where every source comes first."""
+    links: dict[str, tuple[int, int]]
+    """Model link -> semantic label (finger u, segment v)."""
+    poses: dict[str, dict[str, float]] = field(default_factory=dict)
+
+    @property
+    def actuated_joints(self) -> list[str]:
+        return list(self.joints)
+
+    @property
+    def fingers(self) -> list[str]:
+        """Names of the fingers (and palm) that this hand's links carry."""
+        return [FINGERS[u] for u in sorted({u for u, _ in self.links.values()})]
+
+    @property
+    def sha256(self) -> str:
+        """Hash of the spec and its model file: a checkpoint trained on a hand records it."""
+        digest = hashlib.sha256(self.path.read_bytes())
+        digest.update(self.model_path.read_bytes())
+        return digest.hexdigest()
+
+    @classmethod
+    def load(cls, path: str | Path) -> HandSpec:
+        path = Path(path).resolve()
+        if not path.is_file():
+            raise HandSpecError(path, "<file>", "spec file not found")
+        try:
+            raw = yaml.safe_load(path.read_text())
+        except yaml.YAMLError as err:
+            raise HandSpecError(path, "<file>", f"not valid YAML: {err}") from err
+        if not isinstance(raw, dict):
+            raise HandSpecError(path, "<file>", "expected a mapping at the top level")
+        unknown = sorted(
+            set(raw) - {"name", "kind", "model", "description", "joints", "couplings", "links", "poses"}
+        )
+        if unknown:
+            raise HandSpecError(path, unknown[0], f"unknown field(s) {unknown}")
+
+        name = _required(raw, "name", str, path)
+        if not re.fullmatch(r"[a-z0-9_]+", name):
+            raise HandSpecError(path, "name", f"'{name}' must match [a-z0-9_]+")
+        kind = raw.get("kind", "hand")
+        if kind not in KINDS:
+            raise HandSpecError(path, "kind", f"'{kind}' is not one of {list(KINDS)}")
+        model_path = (path.parent / _required(raw, "model", str, path)).resolve()
+        if model_path.suffix.lower() not in MODEL_SUFFIXES:
+            raise HandSpecError(path, "model", f"'{model_path.name}' is neither URDF (.urdf) nor MJCF (.xml)")
+        if not model_path.is_file():
+            raise HandSpecError(path, "model", f"model file '{model_path}' not found")
+
+        joints = _mapping(raw, "joints", path)
+        if not joints:
+            raise HandSpecError(path, "joints", "a hand needs at least one actuated joint")
+        for joint, universal in joints.items():
+            if universal not in UNIVERSAL_INDEX:
+                raise HandSpecError(
+                    path,
+                    f"joints.{joint}",
+                    f"'{universal}' is not in the universal joint table (see `lerobot-opfa hands joints`)",
+                )
+        used = [u for u in joints.values()]
+        duplicates = sorted({u for u in used if used.count(u) > 1})
+        if duplicates:
+            raise HandSpecError(path, "joints", f"universal name(s) {duplicates} used by more than one joint")
+
+        couplings = _parse_couplings(_mapping(raw, "couplings", path), joints, path)
+        links = _parse_links(_mapping(raw, "links", path), path)
+        poses = _parse_poses(_mapping(raw, "poses", path), joints, path)
+        return cls(
+            path, name, kind, model_path, str(raw.get("description", "")), joints, couplings, links, poses
+        )
+
+    def check_against(self, joint_names: list[str], link_names: list[str], geometry_links: set[str]) -> None:
+        """Raise if the spec and the model disagree: every movable joint must be actuated or coupled,
+        every mapped name must exist, and every link with geometry must carry a label."""
+        model_joints = set(joint_names)
+        described = set(self.joints) | set(self.couplings) | {c.source for c in self.couplings.values()}
+        for field_name, names in (("joints", self.joints), ("couplings", self.couplings)):
+            unknown = sorted(set(names) - model_joints)
+            if unknown:
+                raise HandSpecError(
+                    self.path,
+                    field_name,
+                    f"unknown joint(s) {unknown}; the model's movable joints are {joint_names}",
+                )
+        unknown_sources = sorted({c.source for c in self.couplings.values()} - model_joints)
+        if unknown_sources:
+            raise HandSpecError(self.path, "couplings", f"unknown source joint(s) {unknown_sources}")
+        missing = [j for j in joint_names if j not in described]
+        if missing:
+            raise HandSpecError(
+                self.path,
+                "joints",
+                f"model joint(s) {missing} are neither actuated ('joints') nor coupled ('couplings')",
+            )
+        unknown_links = sorted(set(self.links) - set(link_names))
+        if unknown_links:
+            raise HandSpecError(
+                self.path, "links", f"unknown link(s) {unknown_links}; the model's links are {link_names}"
+            )
+        unlabelled = sorted(geometry_links - set(self.links))
+        if unlabelled:
+            raise HandSpecError(
+                self.path, "links", f"link(s) {unlabelled} carry geometry but have no [finger, segment] label"
+            )
+
+
+def _required(raw: dict, key: str, kind: type, path: Path):
+    if key not in raw:
+        raise HandSpecError(path, key, "missing")
+    if not isinstance(raw[key], kind):
+        raise HandSpecError(path, key, f"expected {kind.__name__}, got {type(raw[key]).__name__}")
+    return raw[key]
+
+
+def _mapping(raw: dict, key: str, path: Path) -> dict:
+    value = raw.get(key) or {}
+    if not isinstance(value, dict):
+        raise HandSpecError(path, key, f"expected a mapping, got {type(value).__name__}")
+    return value
+
+
+def _parse_couplings(raw: dict, joints: dict[str, str], path: Path) -> dict[str, Coupling]:
+    parsed: dict[str, Coupling] = {}
+    for joint, entry in raw.items():
+        where = f"couplings.{joint}"
+        if joint in joints:
+            raise HandSpecError(path, where, "a joint cannot be both actuated and coupled")
+        if not isinstance(entry, dict) or "source" not in entry:
+            raise HandSpecError(path, where, "expected {source: JOINT, scale: A, offset: B}")
+        extra = sorted(set(entry) - {"source", "scale", "offset"})
+        if extra:
+            raise HandSpecError(path, where, f"unknown key(s) {extra}")
+        try:
+            parsed[joint] = Coupling(
+                joint, str(entry["source"]), float(entry.get("scale", 1.0)), float(entry.get("offset", 0.0))
+            )
+        except (TypeError, ValueError) as err:
+            raise HandSpecError(path, where, f"scale and offset must be numbers ({err})") from err
+    # Order so that every source precedes the joints it drives; a leftover means a cycle.
+    ordered: dict[str, Coupling] = {}
+    pending = dict(parsed)
+    while pending:
+        ready = [j for j, c in pending.items() if c.source not in pending]
+        if not ready:
+            cycle = _find_cycle(pending)
+            raise HandSpecError(path, "couplings", f"coupling cycle: {' -> '.join(cycle)}")
+        for joint in ready:
+            ordered[joint] = pending.pop(joint)
+    return ordered
+
+
+def _find_cycle(pending: dict[str, Coupling]) -> list[str]:
+    joint = next(iter(pending))
+    seen: list[str] = []
+    while joint not in seen:
+        seen.append(joint)
+        joint = pending[joint].source
+    return seen[seen.index(joint) :] + [joint]
+
+
+def _parse_links(raw: dict, path: Path) -> dict[str, tuple[int, int]]:
+    if not raw:
+        raise HandSpecError(path, "links", "map every link with geometry to [finger, segment]")
+    links = {}
+    for link, label in raw.items():
+        ok = isinstance(label, list) and len(label) == 2 and all(isinstance(x, int) for x in label)
+        if not ok or not 0 <= label[0] < len(FINGERS) or label[1] < 0:
+            raise HandSpecError(path, f"links.{link}", f"expected [finger 0-5, segment >= 0], got {label!r}")
+        links[str(link)] = (label[0], label[1])
+    return links
+
+
+def _parse_poses(raw: dict, joints: dict[str, str], path: Path) -> dict[str, dict[str, float]]:
+    poses = {}
+    for pose in ("open", "grasp"):
+        if pose not in raw:
+            raise HandSpecError(
+                path, "poses", f"pose '{pose}' missing (scripted experts need open and grasp)"
+            )
+    for pose, values in raw.items():
+        if not isinstance(values, dict):
+            raise HandSpecError(path, f"poses.{pose}", "expected a mapping joint -> value")
+        unknown = sorted(set(values) - set(joints))
+        if unknown:
+            raise HandSpecError(path, f"poses.{pose}", f"unknown actuated joint(s) {unknown}")
+        poses[str(pose)] = {str(j): float(v) for j, v in values.items()}
+    return poses
