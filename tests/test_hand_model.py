@@ -4,6 +4,7 @@ couplings, deterministic clouds, labels."""
 from __future__ import annotations
 
 import mujoco
+import numpy as np
 import pytest
 import torch
 from conftest import BUILTIN_HANDS
@@ -38,20 +39,24 @@ def test_couplings_honoured(name):
 
 
 @pytest.mark.parametrize("name", BUILTIN_HANDS)
-def test_mujoco_model_has_actuators_and_couplings(name):
+def test_mujoco_servos_reach_the_grasp_pose_with_couplings(name):
     hand = load_hand(name)
     model = hand_mjspec(hand).compile()
     assert model.nu == hand.dof
     assert model.neq == len(hand.spec.couplings)
     data = mujoco.MjData(model)
-    data.ctrl[:] = hand.pose("grasp").numpy()
-    for _ in range(200):
+    mujoco.mj_resetDataKeyframe(model, data, model.key("open").id)
+    target = hand.pose("grasp").numpy()
+    data.ctrl[:] = target
+    for _ in range(1000):
         mujoco.mj_step(model, data)
     assert all(torch.isfinite(torch.from_numpy(data.qpos)))
-    # The equality constraints drive coupled joints with their sources.
+    reached = np.array([data.joint(j).qpos[0] for j in hand.joint_names])
+    tolerance = 0.1 * (hand.upper - hand.lower).numpy()
+    assert (abs(reached - target) <= tolerance).all(), dict(zip(hand.joint_names, reached, strict=True))
     for coupling in hand.spec.couplings.values():
         joint, source = (data.joint(n).qpos[0] for n in (coupling.joint, coupling.source))
-        assert joint == pytest.approx(coupling.scale * source + coupling.offset, abs=0.05)
+        assert joint == pytest.approx(coupling.scale * source + coupling.offset, abs=0.02)
 
 
 @pytest.mark.parametrize("name", BUILTIN_HANDS)

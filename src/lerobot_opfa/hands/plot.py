@@ -13,7 +13,7 @@ import numpy as np  # noqa: E402
 from lerobot_opfa.hands.universal import FINGERS  # noqa: E402
 
 FINGER_COLOURS = ("#7f7f7f", "#d62728", "#1f77b4", "#2ca02c", "#ff7f0e", "#9467bd")
-VIEWS = (("front (palm side)", 0, 90), ("side (thumb side)", 0, 0))
+VIEWS = (("front (palm side)", 0, 90), ("side (thumb side)", 0, 180))
 
 
 def plot_clouds(clouds: dict[str, tuple[np.ndarray, np.ndarray]], out: str | Path, title: str = "") -> Path:
