@@ -8,6 +8,7 @@ link's own frame; a cloud for a batch of poses is then one gathered rigid transf
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -214,6 +215,32 @@ class HandModel:
         points = torch.einsum("bnij,nj->bni", poses[..., :3, :3], samples.local_points) + poses[..., :3, 3]
         labels = samples.labels.expand(points.shape[0], -1, -1)
         return HandCloud(points, labels, q.to(self.device, self.dtype))
+
+    # --- fingertips ---------------------------------------------------------------------------------
+    @cached_property
+    def fingertip_links(self) -> list[str]:
+        """Each finger's (u >= 1) most distal link with geometry."""
+        tips: dict[int, tuple[int, str]] = {}
+        for link in self.link_names:
+            u, v = self.spec.links[link]
+            if u > 0 and (u not in tips or v > tips[u][0]):
+                tips[u] = (v, link)
+        return [tips[u][1] for u in sorted(tips)]
+
+    @cached_property
+    def _fingertip_local(self) -> torch.Tensor:
+        """(F, 3) the surface point of each fingertip link farthest from its joint, in the link frame."""
+        points = []
+        for link in self.fingertip_links:
+            vertices = self.model_file.link_meshes[link].vertices
+            points.append(vertices[np.linalg.norm(vertices, axis=1).argmax()])
+        return torch.tensor(np.array(points), dtype=torch.float64)
+
+    def fingertip_positions(self, q: torch.Tensor) -> torch.Tensor:
+        """(B, dof) -> (B, F, 3) fingertip points in the base frame, one per finger in `fingertip_links`."""
+        poses = self.link_poses(q, self.fingertip_links)
+        local = self._fingertip_local.to(self.device, self.dtype)
+        return torch.einsum("bfij,fj->bfi", poses[..., :3, :3], local) + poses[..., :3, 3]
 
     def __repr__(self) -> str:
         joints, links = len(self.chain_joint_names), len(self.link_names)

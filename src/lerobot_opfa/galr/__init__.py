@@ -1,0 +1,1 @@
+"""GaLR: geometry-aware latent representation of end-effector states (stage 1 of OPFA)."""

@@ -1,0 +1,145 @@
+"""`lerobot-opfa galr ...`: pretrain, evaluate, embed joints, decode latents."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from lerobot_opfa.galr.model import Galr, GalrConfig
+from lerobot_opfa.hands.registry import builtin_hands
+
+
+def add_commands(subparsers: argparse._SubParsersAction) -> None:
+    galr = subparsers.add_parser("galr", help="GaLR: pretrain, evaluate, embed, decode").add_subparsers(
+        dest="galr_command", required=True
+    )
+    pre = galr.add_parser("pretrain", help="pretrain GaLR on random reachable states of the hands")
+    pre.add_argument(
+        "--hands", default="all", help="'all' (the built-ins) or comma-separated names / spec paths"
+    )
+    pre.add_argument("--steps", type=int, default=3000)
+    pre.add_argument("--batch-size", type=int, default=44)
+    pre.add_argument("--lr", type=float, default=1e-3)
+    pre.add_argument("--output-dir", type=Path, required=True)
+    pre.add_argument("--resume", action="store_true")
+    pre.add_argument("--max-minutes", type=float, help="stop (annealed and saved) after this much wall time")
+    pre.add_argument("--validate-every", type=int, default=250)
+    pre.add_argument("--save-every", type=int, default=500)
+    pre.add_argument("--seed", type=int, default=0)
+    pre.add_argument("--wandb", action="store_true", help="log scalars to Weights & Biases too")
+    pre.add_argument("--push-to-hub", metavar="REPO", help="push the final checkpoint to this Hub repo")
+    pre.add_argument(
+        "--model", nargs="*", default=[], metavar="KEY=VALUE",
+        help="GalrConfig overrides, e.g. encoder=pointnet semantic_embedding=none decoder=per_embodiment",
+    )  # fmt: skip
+    pre.set_defaults(func=_pretrain)
+
+    ev = galr.add_parser(
+        "eval", help="joint RMSE, fingertip error and throughput per hand on held-out states"
+    )
+    ev.add_argument("--checkpoint", required=True, help="a local directory or a Hub repo id")
+    ev.add_argument(
+        "--hands", default="all", help="'all' (the checkpoint's registry) or comma-separated names"
+    )
+    ev.add_argument("--states", type=int, default=256, help="held-out states per hand")
+    ev.add_argument("--seed", type=int, default=1)
+    ev.add_argument("--json", type=Path, required=True)
+    ev.add_argument("--plot", type=Path, help="bar chart of the per-hand errors")
+    ev.add_argument("--clouds", type=Path, help="picture of original vs decoded clouds for a few states")
+    ev.set_defaults(func=_eval)
+
+    embed = galr.add_parser("embed", help="joint vectors (.npy, (B, dof)) -> latents (.npy, (B, d))")
+    embed.add_argument("--checkpoint", required=True)
+    embed.add_argument("--hand", required=True)
+    embed.add_argument("--joints", type=Path, required=True)
+    embed.add_argument("--out", type=Path, required=True)
+    embed.set_defaults(func=_embed)
+
+    decode = galr.add_parser(
+        "decode", help="latents (.npy, (B, d)) -> the hand's joint vectors (.npy, (B, dof))"
+    )
+    decode.add_argument("--checkpoint", required=True)
+    decode.add_argument("--hand", required=True)
+    decode.add_argument("--latents", type=Path, required=True)
+    decode.add_argument("--out", type=Path, required=True)
+    decode.set_defaults(func=_decode)
+
+
+def parse_overrides(pairs: list[str]) -> GalrConfig:
+    """`key=value` strings -> a GalrConfig, with values typed like the fields' defaults."""
+    defaults = GalrConfig()
+    values = {}
+    for pair in pairs:
+        key, sep, raw = pair.partition("=")
+        if not sep or key not in {f.name for f in dataclasses.fields(GalrConfig)} or key == "hands":
+            raise ValueError(f"--model {pair!r}: expected KEY=VALUE with KEY a GalrConfig field")
+        default = getattr(defaults, key)
+        if isinstance(default, tuple):
+            values[key] = tuple(type(default[0])(x) for x in raw.split(","))
+        else:
+            values[key] = type(default)(raw)
+    return GalrConfig(**values)
+
+
+def _hand_list(hands: str, available: list[str]) -> list[str]:
+    return available if hands == "all" else hands.split(",")
+
+
+def _pretrain(args: argparse.Namespace) -> int:
+    from lerobot_opfa.galr.train import PretrainConfig, pretrain
+
+    config = PretrainConfig(
+        output_dir=args.output_dir,
+        hands=_hand_list(args.hands, list(builtin_hands())),
+        steps=args.steps,
+        batch_size=args.batch_size,
+        lr=args.lr,
+        validate_every=args.validate_every,
+        save_every=args.save_every,
+        max_minutes=args.max_minutes,
+        seed=args.seed,
+        resume=args.resume,
+        wandb=args.wandb,
+        push_to_hub=args.push_to_hub,
+        model=parse_overrides(args.model),
+    )
+    pretrain(config)
+    print(f"GaLR checkpoint: {args.output_dir}")
+    return 0
+
+
+def _eval(args: argparse.Namespace) -> int:
+    from lerobot_opfa.galr.evaluate import evaluate, plot_errors, plot_reconstructions
+
+    galr = Galr.from_pretrained(args.checkpoint).eval()
+    hands = _hand_list(args.hands, galr.config.hand_names)
+    report = evaluate(galr, hands, args.states, args.seed, out=args.json)
+    print(f"mean joint RMSE {report['mean']['joint_rmse_deg']:.2f} deg, "
+          f"mean fingertip error {report['mean']['fingertip_error_mm']:.2f} mm -> {args.json}")  # fmt: skip
+    if args.plot:
+        print(plot_errors(report, args.plot))
+    if args.clouds:
+        print(plot_reconstructions(galr, hands, args.clouds, seed=args.seed))
+    return 0
+
+
+def _embed(args: argparse.Namespace) -> int:
+    galr = Galr.from_pretrained(args.checkpoint).eval()
+    with torch.no_grad():
+        z = galr.encode_joints(args.hand, torch.from_numpy(np.load(args.joints)).float())
+    np.save(args.out, z.cpu().numpy())
+    print(f"{args.out}: latents {tuple(z.shape)}")
+    return 0
+
+
+def _decode(args: argparse.Namespace) -> int:
+    galr = Galr.from_pretrained(args.checkpoint).eval()
+    with torch.no_grad():
+        q = galr.decode(torch.from_numpy(np.load(args.latents)).float(), args.hand)
+    np.save(args.out, q.cpu().numpy())
+    print(f"{args.out}: joints {tuple(q.shape)}")
+    return 0

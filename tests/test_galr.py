@@ -1,0 +1,184 @@
+"""GaLR on tiny configs: shapes, kernel points, batch independence, masked loss, checkpoints, registry
+checks, resume, and the CLI end to end."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from lerobot_opfa.galr.data import make_batch, masked_rmse, sample_batch
+from lerobot_opfa.galr.kpconv import kernel_points
+from lerobot_opfa.galr.model import Galr, GalrConfig, hand_record
+from lerobot_opfa.galr.train import PretrainConfig, pretrain
+from lerobot_opfa.hands import HandModel, load_hand
+from lerobot_opfa.hands.registry import hand_models_dir
+
+HANDS = ["umi", "leap", "inspire"]
+TINY = dict(
+    latent_dim=16, n_points=128, n_level1=48, n_superpoints=20, widths=(16, 32, 64), transformer_dim=32,
+    transformer_heads=2, transformer_layers=1, structure_dim=8, decoder_hidden=32,
+    neighbor_limits=(12, 8, 12, 8),
+)  # fmt: skip
+TINY_ARGS = [f"{k}={','.join(map(str, v)) if isinstance(v, tuple) else v}" for k, v in TINY.items()]
+
+
+def tiny_galr(hands=HANDS, **overrides) -> Galr:
+    torch.manual_seed(0)
+    return Galr(GalrConfig(**{**TINY, **overrides}, hands=[hand_record(load_hand(h)) for h in hands])).eval()
+
+
+def _joints(hand: str, n: int, seed: int = 0) -> torch.Tensor:
+    return load_hand(hand).sample_joints(n, torch.Generator().manual_seed(seed))
+
+
+@pytest.mark.parametrize(
+    "overrides",
+    [{}, {"semantic_embedding": "table"}, {"semantic_embedding": "none"}, {"encoder": "pointnet"},
+     {"decoder": "per_embodiment"}],
+)  # fmt: skip
+def test_shapes_for_every_ablation(overrides):
+    galr = tiny_galr(**overrides)
+    for hand in HANDS:
+        z = galr.encode_joints(hand, _joints(hand, 3))
+        assert z.shape == (3, 16) and torch.isfinite(z).all()
+        q = galr.decode(z, hand)
+        model = load_hand(hand)
+        assert q.shape == (3, model.dof)
+        assert (q >= model.lower).all() and (q <= model.upper).all()
+
+
+def test_kernel_points_deterministic_and_saved(tmp_path):
+    first, second = kernel_points(15), kernel_points(15)
+    assert torch.equal(first, second) and first.shape == (15, 3)
+    assert torch.equal(first[0], torch.zeros(3))
+    assert torch.allclose(first[1:].norm(dim=1), torch.full((14,), 0.66))
+    galr = tiny_galr()
+    galr.save_pretrained(tmp_path)
+    state = Galr.from_pretrained(tmp_path).state_dict()
+    assert torch.equal(state["encoder.stem.kernel"], galr.encoder.stem.kernel)
+    assert "encoder.stem.kernel" in galr.state_dict()
+
+
+def test_latent_of_a_hand_does_not_depend_on_its_batch_mates():
+    galr = tiny_galr()
+    alone = galr.encode_joints("leap", _joints("leap", 1, seed=5))
+    batch = make_batch(
+        galr, {"leap": _joints("leap", 1, seed=5), "umi": _joints("umi", 4), "inspire": _joints("inspire", 3)}
+    )
+    together = galr(*batch.encoder_inputs())[:1]
+    assert torch.allclose(alone, together, atol=1e-5)
+    batch = make_batch(galr, {"leap": torch.cat([_joints("leap", 1, seed=5), _joints("leap", 7, seed=6)])})
+    assert torch.allclose(alone, galr(*batch.encoder_inputs())[:1], atol=1e-5)
+
+
+def test_masked_loss_ignores_joints_a_hand_lacks():
+    galr = tiny_galr().train()
+    batch = sample_batch(galr, ["inspire"], 6, torch.Generator().manual_seed(0))
+    loss, per_hand = masked_rmse(galr, batch, galr(*batch.encoder_inputs()))
+    loss.backward()
+    output = galr.decoder[-1]
+    used = load_hand("inspire").universal_index
+    unused = torch.ones(output.out_features, dtype=torch.bool)
+    unused[used] = False
+    assert output.weight.grad[unused].abs().max() == 0 and output.bias.grad[unused].abs().max() == 0
+    assert output.weight.grad[used].abs().max() > 0
+    assert set(per_hand) == {"inspire"}
+
+
+def test_save_load_round_trip_identical(tmp_path):
+    galr = tiny_galr(semantic_embedding="table")
+    galr.save_pretrained(tmp_path)
+    loaded = Galr.from_pretrained(tmp_path).eval()
+    config = json.loads((tmp_path / "config.json").read_text())
+    assert [h["name"] for h in config["hands"]] == HANDS and len(config["universal_joints"]) == 28
+    assert all(len(h["sha256"]) == 64 for h in config["hands"])
+    q = _joints("leap", 4)
+    z = galr.encode_joints("leap", q)
+    assert torch.equal(z, loaded.encode_joints("leap", q))
+    assert torch.equal(galr.decode(z, "leap"), loaded.decode(z, "leap"))
+
+
+def test_unknown_or_changed_hand_is_a_clear_error(tmp_path):
+    galr = tiny_galr()
+    with pytest.raises(ValueError, match="'shadow' is not in this GaLR checkpoint's registry"):
+        galr.encode_joints("shadow", _joints("shadow", 1))
+    changed = tmp_path / "umi"
+    shutil.copytree(hand_models_dir() / "umi", changed)
+    spec = (changed / "spec.yaml").read_text().replace("left_jaw_joint: 0.044}", "left_jaw_joint: 0.04}")
+    (changed / "spec.yaml").write_text(spec)
+    with pytest.raises(ValueError, match="hand 'umi' changed since this GaLR checkpoint was trained"):
+        galr.encode_joints(HandModel.from_spec(changed / "spec.yaml"), _joints("umi", 1))
+
+
+def _pretrain_config(output_dir: Path, steps: int, resume: bool = False) -> PretrainConfig:
+    return PretrainConfig(
+        output_dir=output_dir, hands=["umi", "inspire"], steps=steps, batch_size=6, validate_every=2,
+        save_every=2,
+        validation_states=4, warmup_steps=2, resume=resume, model=GalrConfig(**TINY),
+    )  # fmt: skip
+
+
+def _losses(output_dir: Path) -> dict[int, float]:
+    rows = [json.loads(line) for line in (output_dir / "metrics.jsonl").read_text().splitlines()]
+    return {r["step"]: r["train/loss"] for r in rows if "train/loss" in r}
+
+
+def test_resume_continues_from_the_same_step(tmp_path):
+    straight, interrupted = tmp_path / "straight", tmp_path / "interrupted"
+    pretrain(_pretrain_config(straight, 4))
+    pretrain(_pretrain_config(interrupted, 2))
+    with pytest.raises(FileExistsError, match="--resume"):
+        pretrain(_pretrain_config(interrupted, 4))
+    pretrain(_pretrain_config(interrupted, 4, resume=True))
+    assert sorted(_losses(interrupted)) == [1, 2, 3, 4]
+    assert _losses(interrupted) == pytest.approx(_losses(straight), rel=1e-5)
+    state = torch.load(interrupted / "checkpoints" / "step_0000004" / "training_state.pt", weights_only=False)
+    assert state["step"] == 4
+    a, b = Galr.from_pretrained(straight).state_dict(), Galr.from_pretrained(interrupted).state_dict()
+    assert all(torch.allclose(a[k], b[k], atol=1e-6) for k in a)
+
+
+def _cli(*args: str) -> subprocess.CompletedProcess:
+    exe = Path(sys.executable).parent / "lerobot-opfa"
+    return subprocess.run([str(exe), *args], capture_output=True, text=True, timeout=600)
+
+
+def test_cli_pretrain_eval_embed_decode(tmp_path):
+    run = tmp_path / "galr"
+    result = _cli("galr", "pretrain", "--hands", "umi,inspire", "--steps", "3", "--batch-size", "4",
+                  "--validate-every", "3", "--output-dir", str(run), "--model", *TINY_ARGS)  # fmt: skip
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert (run / "model.safetensors").is_file() and (run / "checkpoints" / "step_0000003").is_dir()
+
+    report_path, plot = tmp_path / "eval.json", tmp_path / "eval.png"
+    result = _cli("galr", "eval", "--checkpoint", str(run), "--states", "8", "--json", str(report_path),
+                  "--plot", str(plot), "--clouds", str(tmp_path / "clouds.png"))  # fmt: skip
+    assert result.returncode == 0, result.stderr[-2000:]
+    report = json.loads(report_path.read_text())
+    assert set(report["hands"]) == {"umi", "inspire"}
+    for metrics in report["hands"].values():
+        assert metrics["joint_rmse_deg"] > 0 and metrics["fingertip_error_mm"] > 0
+    assert "prismatic_rmse_mm" in report["hands"]["umi"]
+    assert plot.read_bytes()[:4] == b"\x89PNG" and (tmp_path / "clouds.png").is_file()
+
+    joints = _joints("inspire", 5).numpy()
+    np.save(tmp_path / "q.npy", joints)
+    q_file = str(tmp_path / "q.npy")
+    result = _cli("galr", "embed", "--checkpoint", str(run), "--hand", "inspire", "--joints", q_file,
+                  "--out", str(tmp_path / "z.npy"))  # fmt: skip
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert np.load(tmp_path / "z.npy").shape == (5, 16)
+    result = _cli("galr", "decode", "--checkpoint", str(run), "--hand", "inspire", "--latents",
+                  str(tmp_path / "z.npy"), "--out", str(tmp_path / "q_hat.npy"))  # fmt: skip
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert np.load(tmp_path / "q_hat.npy").shape == (5, 6)
+    result = _cli("galr", "embed", "--checkpoint", str(run), "--hand", "leap", "--joints", q_file,
+                  "--out", str(tmp_path / "bad.npy"))  # fmt: skip
+    assert result.returncode == 2 and "not in this GaLR checkpoint's registry" in result.stderr
