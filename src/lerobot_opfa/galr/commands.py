@@ -52,6 +52,13 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     ev.add_argument("--clouds", type=Path, help="picture of original vs decoded clouds for a few states")
     ev.set_defaults(func=_eval)
 
+    curves = galr.add_parser("curves", help="plot validation RMSE against training time for pretraining runs")
+    curves.add_argument(
+        "runs", nargs="+", help="run directories (each with metrics.jsonl), LABEL=DIR to name one"
+    )
+    curves.add_argument("--out", type=Path, required=True)
+    curves.set_defaults(func=_curves)
+
     embed = galr.add_parser("embed", help="joint vectors (.npy, (B, dof)) -> latents (.npy, (B, d))")
     embed.add_argument("--checkpoint", required=True)
     embed.add_argument("--hand", required=True)
@@ -124,6 +131,14 @@ def _eval(args: argparse.Namespace) -> int:
         print(plot_errors(report, args.plot))
     if args.clouds:
         print(plot_reconstructions(galr, hands, args.clouds, seed=args.seed))
+    return 0
+
+
+def _curves(args: argparse.Namespace) -> int:
+    from lerobot_opfa.galr.evaluate import plot_training_curves
+
+    runs = dict(r.split("=", 1) if "=" in r else (Path(r).name, r) for r in args.runs)
+    print(plot_training_curves({label: Path(run) for label, run in runs.items()}, args.out))
     return 0
 
 

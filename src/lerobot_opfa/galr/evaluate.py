@@ -108,3 +108,21 @@ def plot_reconstructions(galr: Galr, hands: list[str], out: Path, seed: int = 0,
     return plot_clouds(
         clouds, out, title="GaLR: original (FK of true joints) vs decoded (FK of decoded joints)"
     )
+
+
+def plot_training_curves(runs: dict[str, Path], out: Path) -> Path:
+    """Validation RMSE against wall-clock training time for each run's `metrics.jsonl`."""
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for label, run in runs.items():
+        rows = [json.loads(line) for line in (Path(run) / "metrics.jsonl").read_text().splitlines()]
+        rows = [r for r in rows if "val/rmse_deg_mean" in r]
+        ax.plot([r["elapsed_s"] / 60 for r in rows], [r["val/rmse_deg_mean"] for r in rows], marker="o", ms=3,
+                label=f"{label} (final {rows[-1]['val/rmse_deg_mean']:.2f} deg)")  # fmt: skip
+    ax.set(xlabel="training time (min)", ylabel="validation joint RMSE, mean over hands (deg)", yscale="log")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    Path(out).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return Path(out)
