@@ -20,7 +20,7 @@ from lerobot_opfa.galr.pointnet import PointNetEncoder
 from lerobot_opfa.galr.pyramid import PyramidIndex, pyramid_index
 from lerobot_opfa.galr.transformer import GeometricTransformer, SemanticEmbedding
 from lerobot_opfa.hands.model import HandModel
-from lerobot_opfa.hands.registry import load_hand
+from lerobot_opfa.hands.registry import builtin_hands, load_hand
 from lerobot_opfa.hands.universal import UNIVERSAL_JOINT_NAMES, UNIVERSAL_JOINTS
 
 PRISMATIC_SCALE = 20.0
@@ -164,14 +164,19 @@ class Galr(nn.Module, PyTorchModelHubMixin, library_name="lerobot-opfa", tags=["
             self.decoder = mlp(len(UNIVERSAL_JOINT_NAMES))
         else:
             self.decoder = nn.ModuleDict({h["name"]: mlp(len(h["joints"])) for h in self.config.hands})
-        self._hands: dict[str, tuple[HandModel, PyramidIndex]] = {}
+        self._hands: dict[tuple[str, str], tuple[HandModel, PyramidIndex]] = {}
 
     # --- hands --------------------------------------------------------------------------------------
     def hand(self, hand: str | HandModel) -> tuple[HandModel, PyramidIndex]:
-        """The hand (a registry name, a spec path or a HandModel) checked against the registry, with its
-        pyramid indices; cached."""
-        model = hand if isinstance(hand, HandModel) else load_hand(self._spec_for(hand))
-        if model.name not in self._hands:
+        """The hand (a registry name, a spec path or a HandModel) checked against the registry once, with
+        its pyramid indices, on the model's device; cached, as every batch asks for it."""
+        device = self.device
+        key = (str(hand.spec.path) if isinstance(hand, HandModel) else str(hand), str(device))
+        if key not in self._hands:
+            if isinstance(hand, HandModel):
+                model = hand.to(device)
+            else:
+                model = load_hand(self._spec_for(hand), device=str(device))
             record = self._record(model.name)
             if record["sha256"] != model.spec.sha256:
                 raise ValueError(
@@ -180,10 +185,8 @@ class Galr(nn.Module, PyTorchModelHubMixin, library_name="lerobot-opfa", tags=["
                 )
             c = self.config
             index = pyramid_index(model, c.n_points, c.n_level1, c.n_superpoints, c.sample_seed)
-            self._hands[model.name] = (model, index)
-        model, index = self._hands[model.name]
-        device = self.device
-        return model.to(device), PyramidIndex(index.level1.to(device), index.superpoints.to(device))
+            self._hands[key] = (model, PyramidIndex(index.level1.to(device), index.superpoints.to(device)))
+        return self._hands[key]
 
     def _record(self, name: str) -> dict:
         for record in self.config.hands:
@@ -198,8 +201,6 @@ class Galr(nn.Module, PyTorchModelHubMixin, library_name="lerobot-opfa", tags=["
         """Registry names resolve to the spec recorded at training time when it is not a built-in."""
         for record in self.config.hands:
             if record["name"] == hand:
-                from lerobot_opfa.hands.registry import builtin_hands
-
                 return hand if hand in builtin_hands() else record["spec"]
         return hand
 

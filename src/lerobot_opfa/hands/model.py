@@ -99,8 +99,11 @@ class HandModel:
         return cls(HandSpec.load(path), **kwargs)
 
     def to(self, device: torch.device | str | None = None, dtype: torch.dtype | None = None) -> HandModel:
-        self.device = torch.device(device) if device is not None else self.device
-        self.dtype = dtype or self.dtype
+        """Move in place (FK chain, limits, couplings); cached surface samples are redrawn there."""
+        device = torch.device(device) if device is not None else self.device
+        if hasattr(self, "chain") and device == self.device and (dtype or self.dtype) == self.dtype:
+            return self
+        self.device, self.dtype = device, dtype or self.dtype
         self.chain = self.model_file.chain.to(device=self.device, dtype=self.dtype)
         cast = dict(device=self.device, dtype=self.dtype)
         self.coupling_matrix, self.coupling_offset = (

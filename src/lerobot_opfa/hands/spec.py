@@ -9,6 +9,7 @@ from __future__ import annotations
 import hashlib
 import re
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 import yaml
@@ -62,7 +63,7 @@ class HandSpec:
         """Names of the fingers (and palm) that this hand's links carry."""
         return [FINGERS[u] for u in sorted({u for u, _ in self.links.values()})]
 
-    @property
+    @cached_property
     def sha256(self) -> str:
         """Hash of the spec and its model file: a checkpoint trained on a hand records it."""
         digest = hashlib.sha256(self.path.read_bytes())
