@@ -7,12 +7,11 @@ from pathlib import Path
 
 from lerobot_opfa.hands.model import HandModel
 from lerobot_opfa.hands.spec import HandSpec
+from lerobot_opfa.resources import resource_dir
 
 
 def hand_models_dir() -> Path:
-    """`hand_models/` of the source tree (editable installs) or the copy packed into the wheel."""
-    packaged = Path(__file__).resolve().parent.parent / "hand_models"
-    return packaged if packaged.is_dir() else Path(__file__).resolve().parents[3] / "hand_models"
+    return resource_dir("hand_models")
 
 
 def builtin_hands() -> dict[str, Path]:
