@@ -1,0 +1,101 @@
+"""The `opfa` env type for LeRobot (`--env.type=opfa`) and its gymnasium ids (`opfa/<task>-v0`).
+
+Importing this module only registers; the simulator is imported when an env is made."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import gymnasium as gym
+from lerobot.configs import FeatureType, PolicyFeature
+from lerobot.envs.configs import EnvConfig
+from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
+
+from lerobot_opfa.envs.regions import parse_regions
+
+# Task name -> episode length in steps at the default 20 Hz (the scripted experts finish well within).
+EPISODE_STEPS = {"lift": 100, "pick_place": 160, "press_button": 80, "pull_drawer": 120}
+WRIST_DOF = 6
+ENV_STATE_DIM = 11  # see `tasks`: object position, object quaternion, target position, articulation
+OBS_POINTCLOUD = "observation.pointcloud"
+ENTRY_POINT = "lerobot_opfa.envs.env:OpfaSimEnv"
+
+
+def gym_id(task: str) -> str:
+    return f"opfa/{task}-v0"
+
+
+def check_task(task: str | None) -> str:
+    if task not in EPISODE_STEPS:
+        raise ValueError(f"unknown task '{task}'; valid tasks: {', '.join(EPISODE_STEPS)}")
+    return task
+
+
+for _task, _steps in EPISODE_STEPS.items():
+    if gym_id(_task) not in gym.registry:
+        gym.register(
+            id=gym_id(_task), entry_point=ENTRY_POINT, max_episode_steps=_steps, kwargs={"task": _task}
+        )
+
+
+@EnvConfig.register_subclass("opfa")
+@dataclass
+class OpfaEnvConfig(EnvConfig):
+    """A task of the benchmark with one hand; see `OpfaSimEnv` for the observation and action layout."""
+
+    task: str | None = "lift"
+    hand: str = "leap"  # a built-in hand name or a path to a spec.yaml
+    regions: str = "all"  # comma-separated region names (`lerobot-opfa sim regions`), or "all"
+    obs_type: str = "pointcloud"  # pointcloud | state | pointcloud_state
+    pointcloud_source: str = "depth"  # depth (simulated cameras) | geometry (sampled, faster)
+    n_points: int = 1024
+    depth_cameras: str = "front"  # comma-separated: front, left, right (one render each per step)
+    fps: int = 20
+    episode_length: int | None = None  # steps; None: the task's default
+    render_width: int = 320
+    render_height: int = 240
+    features: dict[str, PolicyFeature] = field(default_factory=dict)
+    features_map: dict[str, str] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        from lerobot_opfa.envs.env import OBS_TYPES, POINTCLOUD_SOURCES, check_choice, parse_cameras
+        from lerobot_opfa.hands.registry import load_spec
+
+        check_task(self.task)
+        parse_regions(self.regions)
+        check_choice("obs_type", self.obs_type, OBS_TYPES)
+        check_choice("pointcloud source", self.pointcloud_source, POINTCLOUD_SOURCES)
+        parse_cameras(self.depth_cameras)
+        dim = WRIST_DOF + len(load_spec(self.hand).joints)
+        self.features = {ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(dim,))}
+        self.features["agent_pos"] = PolicyFeature(type=FeatureType.STATE, shape=(dim,))
+        self.features_map = {ACTION: ACTION, "agent_pos": OBS_STATE}
+        if "pointcloud" in self.obs_type:
+            self.features["pointcloud"] = PolicyFeature(type=FeatureType.STATE, shape=(3 * self.n_points,))
+            self.features_map["pointcloud"] = OBS_POINTCLOUD
+        if "state" in self.obs_type:
+            self.features["environment_state"] = PolicyFeature(type=FeatureType.ENV, shape=(ENV_STATE_DIM,))
+            self.features_map["environment_state"] = OBS_ENV_STATE
+
+    @property
+    def package_name(self) -> str:
+        return __name__
+
+    @property
+    def gym_id(self) -> str:
+        return gym_id(check_task(self.task))
+
+    @property
+    def gym_kwargs(self) -> dict:
+        return {
+            "hand": self.hand,
+            "regions": self.regions,
+            "obs_type": self.obs_type,
+            "pointcloud_source": self.pointcloud_source,
+            "n_points": self.n_points,
+            "depth_cameras": self.depth_cameras,
+            "fps": self.fps,
+            "render_width": self.render_width,
+            "render_height": self.render_height,
+            "max_episode_steps": self.episode_length or EPISODE_STEPS[self.task],
+        }

@@ -1,0 +1,118 @@
+"""Scripted demonstrations recorded as a LeRobotDataset (v3), one (task, hand) per dataset, with the
+episodes spread over the chosen regions. Only successful episodes are kept."""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+
+import numpy as np
+from lerobot.datasets.lerobot_dataset import LeRobotDataset
+from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
+from tqdm import tqdm
+
+from lerobot_opfa.envs.config import ENV_STATE_DIM, EPISODE_STEPS, OBS_POINTCLOUD
+from lerobot_opfa.envs.env import OpfaSimEnv
+from lerobot_opfa.envs.experts import ScriptedExpert
+from lerobot_opfa.envs.regions import parse_regions
+
+logger = logging.getLogger(__name__)
+
+MAX_ATTEMPTS_PER_EPISODE = 3
+META_FILE = "opfa_demos.json"  # in the dataset's meta/: task, hand, regions and seed of every episode
+
+
+def dataset_features(env: OpfaSimEnv) -> dict:
+    """LeRobot features of a demo dataset: state and action named after the wrist and the hand's joints."""
+    names = env.state_names
+    return {
+        OBS_STATE: {"dtype": "float32", "shape": (len(names),), "names": names},
+        ACTION: {"dtype": "float32", "shape": (len(names),), "names": names},
+        OBS_POINTCLOUD: {"dtype": "float32", "shape": (3 * env.n_points,), "names": None},
+        OBS_ENV_STATE: {"dtype": "float32", "shape": (ENV_STATE_DIM,), "names": None},
+    }
+
+
+def expert_episode(env: OpfaSimEnv, seed: int, region: str | None = None) -> tuple[list[dict], bool]:
+    """Run the scripted expert for one seeded episode; returns its frames and whether it succeeded."""
+    obs, _ = env.reset(seed=seed, options={"region": region} if region else None)
+    expert = ScriptedExpert(env, np.random.default_rng(seed))
+    frames, success = [], False
+    for _ in range(EPISODE_STEPS[env.task.name]):
+        action = expert.act()
+        frames.append(
+            {
+                OBS_STATE: obs["agent_pos"].astype(np.float32),
+                ACTION: action.astype(np.float32),
+                OBS_POINTCLOUD: obs["pointcloud"].astype(np.float32),
+                OBS_ENV_STATE: obs["environment_state"].astype(np.float32),
+                "task": env.task_description,
+            }
+        )
+        obs, _, terminated, _, info = env.step(action)
+        if terminated:
+            success = bool(info["is_success"])
+            break
+    return frames, success
+
+
+def record_demos(
+    task: str,
+    hand: str,
+    episodes: int,
+    output_dir: Path,
+    regions: str = "all",
+    seed: int = 0,
+    repo_id: str | None = None,
+    n_points: int = 1024,
+    pointcloud_source: str = "depth",
+    depth_cameras: str = "front",
+) -> LeRobotDataset:
+    """Record `episodes` successful expert episodes, cycling through the regions, into `output_dir`."""
+    region_names = parse_regions(regions)
+    env = OpfaSimEnv(
+        task,
+        hand,
+        region_names,
+        obs_type="pointcloud_state",
+        pointcloud_source=pointcloud_source,
+        n_points=n_points,
+    )
+    dataset = LeRobotDataset.create(
+        repo_id=repo_id or f"local/opfa_{task}_{env.hand_model.name}",
+        fps=env.metadata["render_fps"],
+        features=dataset_features(env),
+        root=output_dir,
+        robot_type=env.hand_model.name,
+        use_videos=False,
+    )
+    records, attempts = [], 0
+    with tqdm(total=episodes, desc=f"demos {task}/{env.hand_model.name}") as bar:
+        while len(records) < episodes and attempts < MAX_ATTEMPTS_PER_EPISODE * episodes:
+            region = region_names[len(records) % len(region_names)]
+            episode_seed = seed + attempts
+            attempts += 1
+            frames, success = expert_episode(env, episode_seed, region)
+            if not success:
+                continue
+            for frame in frames:
+                dataset.add_frame(frame)
+            dataset.save_episode()
+            records.append(
+                {"episode_index": len(records), "region": region, "seed": episode_seed, "length": len(frames)}
+            )
+            bar.update(1)
+    dataset.finalize()
+    env.close()
+    if len(records) < episodes:
+        logger.warning("only %d of %d episodes succeeded in %d attempts", len(records), episodes, attempts)
+    meta = {
+        "task": task,
+        "hand": env.hand_model.name,
+        "regions": region_names,
+        "seed": seed,
+        "attempts": attempts,
+    }
+    (Path(output_dir) / "meta" / META_FILE).write_text(json.dumps({**meta, "episodes": records}, indent=2))
+    return dataset

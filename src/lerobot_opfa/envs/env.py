@@ -1,0 +1,180 @@
+"""`OpfaSimEnv`: a gymnasium env for one (task, hand) pair with LeRobot's observation keys."""
+
+from __future__ import annotations
+
+import logging
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+
+from lerobot_opfa.envs.config import ENV_STATE_DIM
+from lerobot_opfa.envs.observation import DepthPointCloud, GeometryPointCloud
+from lerobot_opfa.envs.regions import REGIONS, parse_regions
+from lerobot_opfa.envs.scene import (
+    DEPTH_CAMERAS,
+    HOME,
+    RENDER_CAMERA,
+    WRIST_JOINTS,
+    WRIST_RANGE,
+    attach_hand,
+    base_spec,
+)
+from lerobot_opfa.envs.tasks import Placement, make_task
+from lerobot_opfa.hands.registry import load_hand
+
+logger = logging.getLogger(__name__)
+
+OBS_TYPES = ("pointcloud", "state", "pointcloud_state")
+POINTCLOUD_SOURCES = ("depth", "geometry")
+SETTLE_STEPS = 20  # physics steps after reset so objects come to rest
+
+
+def check_choice(kind: str, value: str, valid: tuple[str, ...] | list[str]) -> str:
+    if value not in valid:
+        raise ValueError(f"unknown {kind} '{value}'; valid {kind}s: {', '.join(valid)}")
+    return value
+
+
+def parse_cameras(cameras: str | list[str]) -> list[str]:
+    """'front', 'front,left' or a list -> validated depth camera names."""
+    names = [c.strip() for c in cameras.split(",")] if isinstance(cameras, str) else list(cameras)
+    return [check_choice("depth camera", name, list(DEPTH_CAMERAS)) for name in names]
+
+
+class OpfaSimEnv(gym.Env):
+    """A table-top task for any registered hand on a floating wrist.
+
+    Action and `agent_pos` share one layout: the wrist's tool-frame pose (x, y, z in metres, then yaw,
+    pitch, roll in radians; the approach axis points down at zero angles) followed by the hand's actuated
+    joints in its spec's order. Actions are absolute position targets. `pointcloud` is (n_points * 3,)
+    world-frame xyz, flattened so LeRobot datasets built from it can be merged; `environment_state` is the
+    task's object state (`tasks.ENV_STATE_DIM`).
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
+
+    def __init__(
+        self,
+        task: str = "lift",
+        hand: str = "leap",
+        regions: str | list[str] = "all",
+        obs_type: str = "pointcloud",
+        pointcloud_source: str = "depth",
+        n_points: int = 1024,
+        depth_cameras: str | list[str] = "front",
+        fps: int = 20,
+        render_mode: str = "rgb_array",
+        render_width: int = 320,
+        render_height: int = 240,
+    ) -> None:
+        self.task = make_task(task)
+        self.hand_model = load_hand(hand)
+        self.regions = parse_regions(regions)
+        self.obs_type = check_choice("obs_type", obs_type, OBS_TYPES)
+        self.pointcloud_source = check_choice("pointcloud source", pointcloud_source, POINTCLOUD_SOURCES)
+        self.depth_cameras = parse_cameras(depth_cameras)
+        self.n_points, self.render_mode = n_points, render_mode
+        self.render_size = (render_height, render_width)
+        self.metadata = {**self.metadata, "render_fps": fps}
+
+        spec = base_spec()
+        self.task.build(spec)
+        self.scene = attach_hand(spec, self.hand_model)
+        self.task.bind(self.scene)
+        self.model = self.scene.model
+        self.data = mujoco.MjData(self.model)
+        self.n_substeps = max(1, round(1.0 / (fps * self.model.opt.timestep)))
+        self.ctrl_index = np.array(
+            [self.model.actuator(f"act_{j}").id for j in WRIST_JOINTS]
+            + [self.model.actuator(f"hand/act_{j}").id for j in self.hand_model.joint_names]
+        )
+        self.hand_open = self.hand_model.pose("open").double().cpu().numpy()
+        self.hand_open_all = (
+            self.hand_model.expand(self.hand_model.pose("open")[None])[0].double().cpu().numpy()
+        )
+
+        low = np.concatenate([WRIST_RANGE[:, 0], self.hand_model.lower.double().cpu().numpy()])
+        high = np.concatenate([WRIST_RANGE[:, 1], self.hand_model.upper.double().cpu().numpy()])
+        self.action_space = gym.spaces.Box(low.astype(np.float32), high.astype(np.float32), dtype=np.float32)
+        spaces = {"agent_pos": gym.spaces.Box(-np.inf, np.inf, (len(low),), np.float64)}
+        if "pointcloud" in self.obs_type:
+            spaces["pointcloud"] = gym.spaces.Box(-np.inf, np.inf, (n_points * 3,), np.float32)
+        if "state" in self.obs_type:
+            spaces["environment_state"] = gym.spaces.Box(-np.inf, np.inf, (ENV_STATE_DIM,), np.float64)
+        self.observation_space = gym.spaces.Dict(spaces)
+
+        self._cloud: DepthPointCloud | GeometryPointCloud | None = None
+        self._renderer: mujoco.Renderer | None = None
+        self.placement: Placement | None = None
+        self.region: str | None = None
+
+    @property
+    def task_description(self) -> str:
+        """The language task LeRobot's eval loop passes to policies."""
+        return self.task.description
+
+    @property
+    def state_names(self) -> list[str]:
+        return list(WRIST_JOINTS) + list(self.hand_model.joint_names)
+
+    def _point_cloud(self) -> np.ndarray:
+        if self._cloud is None:
+            if self.pointcloud_source == "depth":
+                self._cloud = DepthPointCloud(self.model, self.n_points, self.depth_cameras)
+            else:
+                exclude = {self.scene.table_geom, self.model.geom("floor").id}
+                self._cloud = GeometryPointCloud(self.model, self.n_points, exclude)
+        return self._cloud(self.data, self.np_random).reshape(-1)
+
+    def observation(self) -> dict[str, np.ndarray]:
+        obs = {
+            "agent_pos": np.concatenate(
+                [self.data.qpos[self.scene.wrist_qpos], self.data.qpos[self.scene.hand_qpos]]
+            )
+        }
+        if "pointcloud" in self.obs_type:
+            obs["pointcloud"] = self._point_cloud()
+        if "state" in self.obs_type:
+            obs["environment_state"] = self.task.env_state(self.scene, self.data)
+        return obs
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        mujoco.mj_resetData(self.model, self.data)
+        self.region = (options or {}).get("region") or self.regions[
+            self.np_random.integers(len(self.regions))
+        ]
+        xy = REGIONS[self.region].sample(self.np_random)
+        self.placement = self.task.place(self.scene, self.data, xy, self.np_random)
+        self.data.qpos[self.scene.wrist_qpos] = HOME
+        self.data.qpos[self.scene.chain_qpos] = self.hand_open_all
+        self.data.ctrl[self.ctrl_index] = np.concatenate([HOME, self.hand_open])
+        mujoco.mj_forward(self.model, self.data)
+        mujoco.mj_step(self.model, self.data, SETTLE_STEPS)
+        return self.observation(), {"is_success": False, "region": self.region}
+
+    def step(self, action: np.ndarray):
+        action = np.clip(np.asarray(action, dtype=np.float64), self.action_space.low, self.action_space.high)
+        self.data.ctrl[self.ctrl_index] = action
+        mujoco.mj_step(self.model, self.data, self.n_substeps)
+        if self.data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number:
+            logger.warning("simulation became unstable (bad qacc); MuJoCo reset the state")
+        success = self.task.success(self.scene, self.data)
+        return self.observation(), float(success), success, False, {"is_success": success}
+
+    def render(self) -> np.ndarray:
+        if self._renderer is None:
+            self._renderer = mujoco.Renderer(
+                self.model, height=self.render_size[0], width=self.render_size[1]
+            )
+        self._renderer.update_scene(self.data, camera=RENDER_CAMERA[0])
+        return self._renderer.render()
+
+    def close(self) -> None:
+        if self._cloud is not None:
+            self._cloud.close()
+            self._cloud = None
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None

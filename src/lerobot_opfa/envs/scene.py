@@ -1,0 +1,148 @@
+"""The MuJoCo scene shared by every task: a table, cameras, and a floating 6-DoF wrist (three slides and
+three hinges with position servos, gravity-compensated) carrying any registered hand in its tool frame."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from lerobot_opfa.envs.toolframe import ToolFrame, tool_frame
+from lerobot_opfa.hands.model import HandModel
+from lerobot_opfa.hands.mujoco_model import hand_mjspec
+
+TIMESTEP = 0.002
+TABLE_HALF = (0.45, 0.40, 0.025)  # table top at z = 0
+WRIST_JOINTS = ("wrist_x", "wrist_y", "wrist_z", "wrist_yaw", "wrist_pitch", "wrist_roll")
+WRIST_RANGE = np.array([[-0.4, 0.4], [-0.4, 0.4], [0.0, 0.6], [-np.pi, np.pi], [-1.2, 1.2], [-1.2, 1.2]])
+# Wrist servos: the carriage plus the heaviest hand is about 1.5 kg and 0.02 kg m^2; these gains give a
+# response in tens of milliseconds, damped close to critically.
+WRIST_KP = (3000.0, 3000.0, 3000.0, 150.0, 150.0, 150.0)
+WRIST_KV = (150.0, 150.0, 150.0, 6.0, 6.0, 6.0)
+WRIST_FORCE = (150.0, 150.0, 150.0, 20.0, 20.0, 20.0)
+HOME = np.array([-0.05, 0.0, 0.30, 0.0, 0.0, 0.0])
+OBJECT_FRICTION = (1.5, 0.02, 0.002)
+# Depth cameras by name (each added to the model as `depth_<name>`); envs use `front` unless told otherwise.
+DEPTH_CAMERAS = {"front": (-0.50, 0.0, 0.60), "left": (-0.40, 0.38, 0.50), "right": (-0.40, -0.38, 0.50)}
+RENDER_CAMERA = ("view", (-0.80, -0.35, 0.62))
+LOOK_AT = (0.02, 0.0, 0.06)
+
+
+@dataclass
+class Scene:
+    """A compiled scene and the addresses an env needs to read and drive it."""
+
+    model: mujoco.MjModel
+    hand: HandModel
+    tool: ToolFrame
+    wrist_qpos: np.ndarray  # qpos addresses of the six wrist joints
+    hand_qpos: np.ndarray  # qpos addresses of the hand's actuated joints, in spec order
+    chain_qpos: np.ndarray  # qpos addresses of every hand joint, in `hand.chain_joint_names` order
+    hand_geoms: np.ndarray  # geom ids of the hand
+    table_geom: int
+
+
+def look_at(pos: tuple[float, float, float], target: tuple[float, float, float]) -> list[float]:
+    """Quaternion of a MuJoCo camera at `pos` looking at `target` (cameras look along -z, y up)."""
+    back = np.asarray(pos, float) - np.asarray(target, float)
+    back /= np.linalg.norm(back)
+    right = np.cross([0.0, 0.0, 1.0], back)
+    right /= np.linalg.norm(right)
+    up = np.cross(back, right)
+    quat = np.zeros(4)
+    mujoco.mju_mat2Quat(quat, np.stack([right, up, back], axis=1).ravel())
+    return quat.tolist()
+
+
+def _add_carriage(spec: mujoco.MjSpec) -> mujoco.MjsBody:
+    """Six nested bodies, one joint each; returns the last (the tool frame, approach axis pointing down)."""
+    parent = spec.worldbody
+    axes = np.eye(3)
+    for i, name in enumerate(WRIST_JOINTS):
+        body = parent.add_body(name=name, mass=0.05, inertia=[1e-4, 1e-4, 1e-4], gravcomp=1.0)
+        kind = mujoco.mjtJoint.mjJNT_SLIDE if i < 3 else mujoco.mjtJoint.mjJNT_HINGE
+        # yaw about z, then pitch about y, then roll about x: R = Rz Ry Rx
+        axis = axes[i] if i < 3 else axes[(2, 1, 0)[i - 3]]
+        body.add_joint(
+            name=name,
+            type=kind,
+            axis=axis.tolist(),
+            range=WRIST_RANGE[i].tolist(),
+            armature=0.01,
+            damping=0.0,
+        )
+        actuator = spec.add_actuator(name=f"act_{name}", target=name, trntype=mujoco.mjtTrn.mjTRN_JOINT)
+        actuator.set_to_position(kp=WRIST_KP[i], kv=WRIST_KV[i])
+        actuator.ctrlrange = WRIST_RANGE[i].tolist()
+        actuator.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
+        actuator.forcerange = [-WRIST_FORCE[i], WRIST_FORCE[i]]
+        actuator.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
+        parent = body
+    # the tool's approach axis (+z) points down at zero angles: a half turn about x
+    return parent.add_body(name="tool", quat=[0.0, 1.0, 0.0, 0.0], gravcomp=1.0)
+
+
+def base_spec() -> mujoco.MjSpec:
+    """World, table, lights and cameras; tasks add their objects and `attach_hand` the hand."""
+    spec = mujoco.MjSpec()
+    spec.compiler.degree = False  # joint ranges below are in radians
+    spec.option.timestep = TIMESTEP
+    spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    spec.option.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
+    spec.option.impratio = 10.0
+    spec.visual.global_.offwidth, spec.visual.global_.offheight = 640, 480
+    spec.visual.headlight.ambient = [0.4, 0.4, 0.4]
+    world = spec.worldbody
+    world.add_light(
+        name="sun", pos=[0.0, 0.0, 1.5], dir=[0.2, 0.1, -1.0], type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL
+    )
+    world.add_geom(
+        name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[2, 2, 0.1], pos=[0, 0, -0.75],
+        rgba=[0.3, 0.33, 0.36, 1], contype=0, conaffinity=0,
+    )  # fmt: skip
+    world.add_geom(
+        name="table", type=mujoco.mjtGeom.mjGEOM_BOX, size=list(TABLE_HALF), pos=[0, 0, -TABLE_HALF[2]],
+        rgba=[0.62, 0.5, 0.38, 1], friction=[1.0, 0.01, 0.001],
+    )  # fmt: skip
+    for name, pos in DEPTH_CAMERAS.items():
+        world.add_camera(name=f"depth_{name}", pos=list(pos), quat=look_at(pos, LOOK_AT), fovy=60.0)
+    world.add_camera(
+        name=RENDER_CAMERA[0], pos=list(RENDER_CAMERA[1]), quat=look_at(RENDER_CAMERA[1], LOOK_AT)
+    )
+    return spec
+
+
+def attach_hand(spec: mujoco.MjSpec, hand: HandModel) -> Scene:
+    """Mount the hand on the wrist carriage in its tool frame, compile, and index the result."""
+    tool = tool_frame(hand)
+    rot, pos = tool.hand_in_tool()
+    quat = np.zeros(4)
+    mujoco.mju_mat2Quat(quat, np.ascontiguousarray(rot).ravel())
+    frame = _add_carriage(spec).add_frame(pos=pos.tolist(), quat=quat.tolist())
+    child = hand_mjspec(hand)
+    child.option.integrator = spec.option.integrator  # the scene's options win; say so to avoid a warning
+    spec.attach(child, frame=frame, prefix="hand/")
+    for body in spec.bodies:
+        if body.name.startswith("hand/"):
+            body.gravcomp = 1.0
+    for key in list(spec.keys):  # the hand's keyframes cover only its own joints
+        spec.delete(key)
+    model = spec.compile()
+    hand_bodies = {i for i in range(model.nbody) if model.body(i).name.startswith("hand/")}
+    return Scene(
+        model=model,
+        hand=hand,
+        tool=tool,
+        wrist_qpos=np.array([model.jnt_qposadr[model.joint(j).id] for j in WRIST_JOINTS]),
+        hand_qpos=np.array([model.jnt_qposadr[model.joint(f"hand/{j}").id] for j in hand.joint_names]),
+        chain_qpos=np.array([model.jnt_qposadr[model.joint(f"hand/{j}").id] for j in hand.chain_joint_names]),
+        hand_geoms=np.array([g for g in range(model.ngeom) if model.geom_bodyid[g] in hand_bodies]),
+        table_geom=model.geom("table").id,
+    )
+
+
+def tool_to_world(vector: np.ndarray, yaw: float) -> np.ndarray:
+    """A tool-frame vector in the world frame, for the wrist at `yaw` (pitch and roll zero)."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ (vector * [1.0, -1.0, -1.0])

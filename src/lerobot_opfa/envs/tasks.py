@@ -1,0 +1,257 @@
+"""The benchmark's tasks, modelled on the paper's: each adds its objects to the scene, places them at
+reset, and decides success from the simulator state alone (never from what a script did)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from lerobot_opfa.envs.config import check_task
+from lerobot_opfa.envs.regions import GRID_X, GRID_Y
+from lerobot_opfa.envs.scene import OBJECT_FRICTION, Scene
+
+BOX, CAPSULE, CYLINDER = (
+    mujoco.mjtGeom.mjGEOM_BOX,
+    mujoco.mjtGeom.mjGEOM_CAPSULE,
+    mujoco.mjtGeom.mjGEOM_CYLINDER,
+)
+
+
+def _geom(body: mujoco.MjsBody, rgba: list[float], **kwargs) -> mujoco.MjsGeom:
+    return body.add_geom(rgba=rgba, friction=list(OBJECT_FRICTION), condim=4, **kwargs)
+
+
+@dataclass
+class Placement:
+    """Where reset put the task's objects (the scripted experts plan from it)."""
+
+    xy: np.ndarray  # the anchor drawn inside a region
+    yaw: float = 0.0
+    target_xy: np.ndarray | None = None
+
+
+class Task:
+    """Base class: a named task with its objects, reset, state vector and success test."""
+
+    name: str
+    description: str
+
+    def build(self, spec: mujoco.MjSpec) -> None:
+        raise NotImplementedError
+
+    def bind(self, scene: Scene) -> None:
+        """Look up the ids this task reads, once the scene is compiled."""
+        raise NotImplementedError
+
+    def place(self, scene: Scene, data: mujoco.MjData, xy: np.ndarray, rng: np.random.Generator) -> Placement:
+        raise NotImplementedError
+
+    def env_state(self, scene: Scene, data: mujoco.MjData) -> np.ndarray:
+        """`config.ENV_STATE_DIM` values, the same layout for every task: object position (3), object
+        quaternion (4), target position (3), articulation (1: button depth or drawer opening, else 0)."""
+        raise NotImplementedError
+
+    def success(self, scene: Scene, data: mujoco.MjData) -> bool:
+        raise NotImplementedError
+
+
+def _free_body_state(data: mujoco.MjData, qpos_adr: int) -> np.ndarray:
+    """Position and quaternion of a free body."""
+    return data.qpos[qpos_adr : qpos_adr + 7]
+
+
+def _touching(scene: Scene, data: mujoco.MjData, body: int) -> bool:
+    """Whether any hand geom is in contact with `body`."""
+    hand = scene.hand_geoms
+    for i in range(data.ncon):
+        g1, g2 = data.contact[i].geom
+        b1, b2 = scene.model.geom_bodyid[g1], scene.model.geom_bodyid[g2]
+        if (b1 == body and g2 in hand) or (b2 == body and g1 in hand):
+            return True
+    return False
+
+
+class Lift(Task):
+    """Lift an upright can 8 cm off the table."""
+
+    name = "lift"
+    description = "lift the can"
+    radius, half_height, lift_height = 0.032, 0.06, 0.08
+
+    def build(self, spec: mujoco.MjSpec) -> None:
+        body = spec.worldbody.add_body(name="can", pos=[0, 0, self.half_height])
+        body.add_freejoint(name="can")
+        _geom(body, [0.8, 0.15, 0.1, 1], type=CYLINDER, size=[self.radius, self.half_height, 0], mass=0.15)
+
+    def bind(self, scene: Scene) -> None:
+        self.qpos = scene.model.jnt_qposadr[scene.model.joint("can").id]
+
+    def place(self, scene: Scene, data: mujoco.MjData, xy: np.ndarray, rng: np.random.Generator) -> Placement:
+        data.qpos[self.qpos : self.qpos + 7] = [*xy, self.half_height, 1, 0, 0, 0]
+        return Placement(xy)
+
+    def env_state(self, scene: Scene, data: mujoco.MjData) -> np.ndarray:
+        return np.concatenate([_free_body_state(data, self.qpos), np.zeros(4)])
+
+    def success(self, scene: Scene, data: mujoco.MjData) -> bool:
+        return bool(data.qpos[self.qpos + 2] - self.half_height >= self.lift_height)
+
+
+class PickPlace(Task):
+    """Put a banana-like object (three capsules in an arc) onto a plate and let go."""
+
+    name = "pick_place"
+    description = "put the banana on the plate"
+    radius, plate_radius, plate_half = 0.024, 0.08, 0.005
+    min_distance = 0.17  # between banana and plate centres at reset
+
+    def build(self, spec: mujoco.MjSpec) -> None:
+        yellow = [0.95, 0.8, 0.15, 1]
+        body = spec.worldbody.add_body(name="banana", pos=[0, 0, self.radius])
+        body.add_freejoint(name="banana")
+        _geom(
+            body, yellow, type=CAPSULE, fromto=[-0.03, 0, 0, 0.03, 0, 0], size=[self.radius, 0, 0], mass=0.06
+        )
+        for sign in (-1, 1):
+            end = [sign * 0.065, 0.018, 0.0]
+            _geom(body, yellow, type=CAPSULE, fromto=[sign * 0.03, 0, 0, *end], size=[0.02, 0, 0], mass=0.03)
+        plate = spec.worldbody.add_body(name="plate", pos=[0.1, 0, self.plate_half])
+        _geom(plate, [0.92, 0.92, 0.95, 1], type=CYLINDER, size=[self.plate_radius, self.plate_half, 0])
+
+    def bind(self, scene: Scene) -> None:
+        model = scene.model
+        self.qpos = model.jnt_qposadr[model.joint("banana").id]
+        self.body, self.plate = model.body("banana").id, model.body("plate").id
+
+    def place(self, scene: Scene, data: mujoco.MjData, xy: np.ndarray, rng: np.random.Generator) -> Placement:
+        yaw = float(rng.uniform(-np.pi / 2, np.pi / 2))
+        data.qpos[self.qpos : self.qpos + 7] = [*xy, self.radius, np.cos(yaw / 2), 0, 0, np.sin(yaw / 2)]
+        while True:  # the plate goes anywhere on the grid, clear of the banana
+            target = np.array([rng.uniform(*GRID_X), rng.uniform(*GRID_Y)])
+            if np.linalg.norm(target - xy) >= self.min_distance:
+                break
+        scene.model.body_pos[self.plate][:2] = target
+        return Placement(xy, yaw, target)
+
+    def env_state(self, scene: Scene, data: mujoco.MjData) -> np.ndarray:
+        plate = scene.model.body_pos[self.plate]
+        return np.concatenate([_free_body_state(data, self.qpos), plate, [0.0]])
+
+    def success(self, scene: Scene, data: mujoco.MjData) -> bool:
+        pos = data.qpos[self.qpos : self.qpos + 3]
+        plate = scene.model.body_pos[self.plate]
+        on_plate = np.linalg.norm(pos[:2] - plate[:2]) <= self.plate_radius and pos[2] <= 0.06
+        return bool(on_plate and not _touching(scene, data, self.body))
+
+
+class PressButton(Task):
+    """Press a spring-loaded button at least 10 mm down."""
+
+    name = "press_button"
+    description = "press the button"
+    base_half, cap_half, travel, threshold = 0.02, 0.01, 0.015, 0.010
+
+    def build(self, spec: mujoco.MjSpec) -> None:
+        base = spec.worldbody.add_body(name="button_base", pos=[0, 0, self.base_half])
+        _geom(base, [0.25, 0.25, 0.28, 1], type=BOX, size=[0.045, 0.045, self.base_half])
+        cap = base.add_body(name="button", pos=[0, 0, self.base_half + self.cap_half + 0.004], gravcomp=1.0)
+        cap.add_joint(
+            name="button", type=mujoco.mjtJoint.mjJNT_SLIDE, axis=[0, 0, -1], range=[0, self.travel],
+            stiffness=150.0, damping=2.0,
+        )  # fmt: skip
+        _geom(cap, [0.9, 0.1, 0.1, 1], type=BOX, size=[0.03, 0.03, self.cap_half], mass=0.02)
+        spec.add_exclude(bodyname1="button_base", bodyname2="button")
+
+    def bind(self, scene: Scene) -> None:
+        model = scene.model
+        self.base = model.body("button_base").id
+        self.qpos = model.jnt_qposadr[model.joint("button").id]
+        self.cap_top = 2 * self.base_half + 2 * self.cap_half + 0.004
+
+    def place(self, scene: Scene, data: mujoco.MjData, xy: np.ndarray, rng: np.random.Generator) -> Placement:
+        scene.model.body_pos[self.base][:2] = xy
+        return Placement(xy)
+
+    def env_state(self, scene: Scene, data: mujoco.MjData) -> np.ndarray:
+        pos = scene.model.body_pos[self.base]
+        return np.concatenate([pos, [1, 0, 0, 0], np.zeros(3), [data.qpos[self.qpos]]])
+
+    def success(self, scene: Scene, data: mujoco.MjData) -> bool:
+        return bool(data.qpos[self.qpos] >= self.threshold)
+
+
+class PullDrawer(Task):
+    """Pull a drawer open by at least 10 cm by its bar handle."""
+
+    name = "pull_drawer"
+    description = "pull the drawer open"
+    handle_height, handle_out, opening = 0.085, 0.055, 0.10
+    depth, width, height = 0.18, 0.20, 0.13  # drawer box half extents are half of these
+
+    def build(self, spec: mujoco.MjSpec) -> None:
+        d, w, h = self.depth, self.width, self.height
+        grey, wood = [0.55, 0.55, 0.58, 1], [0.55, 0.38, 0.25, 1]
+        # the cabinet's anchor is the handle's centre when closed; the drawer front is handle_out behind it
+        cab = spec.worldbody.add_body(name="cabinet", pos=[0, 0, 0])
+        front = self.handle_out
+        for sign in (-1, 1):
+            _geom(
+                cab,
+                grey,
+                type=BOX,
+                size=[d / 2 + 0.01, 0.01, h / 2],
+                pos=[front + d / 2, sign * (w / 2 + 0.012), h / 2],
+            )
+        _geom(cab, grey, type=BOX, size=[0.01, w / 2 + 0.022, h / 2], pos=[front + d + 0.02, 0, h / 2])
+        drawer = cab.add_body(name="drawer", pos=[front + d / 2, 0, h / 2 + 0.002])
+        drawer.add_joint(
+            name="drawer", type=mujoco.mjtJoint.mjJNT_SLIDE, axis=[-1, 0, 0], range=[0, 0.2],
+            damping=8.0, frictionloss=0.5,
+        )  # fmt: skip
+        _geom(drawer, wood, type=BOX, size=[d / 2, w / 2, h / 2 - 0.002], mass=0.4)
+        hz = self.handle_height - h / 2 - 0.002
+        for sign in (-1, 1):
+            _geom(
+                drawer,
+                grey,
+                type=BOX,
+                size=[front / 2, 0.008, 0.008],
+                pos=[-d / 2 - front / 2, sign * 0.06, hz],
+            )
+        _geom(
+            drawer,
+            grey,
+            type=CAPSULE,
+            fromto=[-d / 2 - front, -0.07, hz, -d / 2 - front, 0.07, hz],
+            size=[0.011, 0, 0],
+        )
+        spec.add_exclude(bodyname1="cabinet", bodyname2="drawer")
+
+    def bind(self, scene: Scene) -> None:
+        model = scene.model
+        self.cabinet = model.body("cabinet").id
+        self.qpos = model.jnt_qposadr[model.joint("drawer").id]
+
+    def place(self, scene: Scene, data: mujoco.MjData, xy: np.ndarray, rng: np.random.Generator) -> Placement:
+        scene.model.body_pos[self.cabinet][:2] = xy
+        return Placement(xy)
+
+    def handle(self, scene: Scene, data: mujoco.MjData) -> np.ndarray:
+        """World position of the handle's centre."""
+        anchor = scene.model.body_pos[self.cabinet]
+        return np.array([anchor[0] - data.qpos[self.qpos], anchor[1], self.handle_height])
+
+    def env_state(self, scene: Scene, data: mujoco.MjData) -> np.ndarray:
+        return np.concatenate([self.handle(scene, data), [1, 0, 0, 0], np.zeros(3), [data.qpos[self.qpos]]])
+
+    def success(self, scene: Scene, data: mujoco.MjData) -> bool:
+        return bool(data.qpos[self.qpos] >= self.opening)
+
+
+TASKS: dict[str, type[Task]] = {t.name: t for t in (Lift, PickPlace, PressButton, PullDrawer)}
+
+
+def make_task(name: str) -> Task:
+    return TASKS[check_task(name)]()

@@ -1,0 +1,75 @@
+"""A tool frame for every hand, computed from its geometry: where its grasp closes (origin: between the
+thumb's tip and the other fingertips in the grasp pose), from which side it approaches (+z: from the
+wrist towards that point) and along which axis it squeezes (+x: thumb against fingers; a held bar lies
+along +y). The wrist is controlled in this frame, so one wrist
+trajectory brings any hand's grasp onto an object and scripted experts need no per-hand tuning."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cache
+
+import numpy as np
+import torch
+
+from lerobot_opfa.hands.model import HandModel
+
+N_CLOUD = 3000
+N_TIP = 10  # points that make up a fingertip: the ones of a finger farthest from the wrist
+PRESS_BAND = 0.005  # m: points this close to the foremost one make up the press point
+CLOSURES = np.linspace(0.0, 1.0, 11)  # hand poses between open (0) and grasp (1) whose reach is tabled
+
+
+@dataclass(frozen=True)
+class ToolFrame:
+    """Tool frame in the hand's base frame, plus the reach of the hand beyond it along the approach axis."""
+
+    rotation: np.ndarray  # (3, 3), columns: tool x (squeeze), y, z (approach) in the hand frame
+    origin: np.ndarray  # (3,), grasp centre in the hand frame
+    reach: np.ndarray  # how far the hand reaches past the origin along the approach axis, at `CLOSURES`
+    press_point: np.ndarray  # (3,) in the tool frame: the closed hand's foremost point along the approach
+
+    def reach_at(self, closure: float) -> float:
+        """Reach of the hand `closure` of the way from its open to its grasp pose."""
+        return float(np.interp(closure, CLOSURES, self.reach))
+
+    def hand_in_tool(self) -> tuple[np.ndarray, np.ndarray]:
+        """(rotation, translation) of the hand's base frame in the tool frame (for attaching the hand)."""
+        rot = self.rotation.T
+        return rot, -rot @ self.origin
+
+
+def _fingertips(points: np.ndarray, fingers: np.ndarray) -> dict[int, np.ndarray]:
+    tips = {}
+    for finger in sorted(set(fingers.tolist()) - {0}):
+        pts = points[fingers == finger]
+        tips[finger] = pts[np.argsort(np.linalg.norm(pts, axis=1))[-N_TIP:]].mean(0)
+    return tips
+
+
+@cache
+def _tool_frame_cached(hand: HandModel) -> ToolFrame:
+    q_open, q_grasp = hand.pose("open"), hand.pose("grasp")
+    closures = torch.as_tensor(CLOSURES, dtype=q_open.dtype, device=q_open.device)[:, None]
+    cloud = hand.point_cloud(q_open + closures * (q_grasp - q_open), N_CLOUD)
+    points = cloud.points.double().cpu().numpy()
+    fingers = cloud.labels[0, :, 0].cpu().numpy()
+    open_tips, grasp_tips = _fingertips(points[0], fingers), _fingertips(points[-1], fingers)
+    thumb = min(grasp_tips)  # finger index 1 (thumb, or a gripper's first jaw)
+    others = [u for u in grasp_tips if u != thumb]
+    if not others:
+        raise ValueError(f"hand '{hand.name}' needs at least two fingers for a tool frame")
+    origin = 0.5 * (grasp_tips[thumb] + np.mean([grasp_tips[u] for u in others], axis=0))
+    z = origin / np.linalg.norm(origin)
+    x = open_tips[thumb] - np.mean([open_tips[u] for u in others], axis=0)
+    x -= x.dot(z) * z
+    x /= np.linalg.norm(x)
+    rotation = np.stack([x, np.cross(z, x), z], axis=1)
+    depth = points @ z - origin @ z
+    tip = points[-1][depth[-1] >= depth[-1].max() - PRESS_BAND]
+    return ToolFrame(rotation, origin, depth.max(axis=1), rotation.T @ (tip.mean(0) - origin))
+
+
+def tool_frame(hand: HandModel) -> ToolFrame:
+    """The hand's tool frame (cached per hand model)."""
+    return _tool_frame_cached(hand)

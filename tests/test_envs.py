@@ -1,0 +1,143 @@
+"""The MuJoCo benchmark's envs: every hand in every task scene, success detection, point clouds, names."""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from conftest import BUILTIN_HANDS
+
+from lerobot_opfa.envs.config import EPISODE_STEPS, OpfaEnvConfig
+from lerobot_opfa.envs.env import OpfaSimEnv
+from lerobot_opfa.envs.experts import ScriptedExpert
+from lerobot_opfa.envs.observation import WORKSPACE_HIGH, WORKSPACE_LOW
+from lerobot_opfa.envs.regions import REGIONS, parse_regions
+from lerobot_opfa.envs.tasks import TASKS
+
+TASK_NAMES = list(EPISODE_STEPS)
+
+
+def test_task_tables_agree():
+    assert sorted(TASKS) == sorted(EPISODE_STEPS)
+    assert len(REGIONS) >= 9
+
+
+@pytest.mark.parametrize("hand", BUILTIN_HANDS)
+def test_every_hand_steps_in_every_task(hand):
+    """Each scene compiles with the hand attached and random actions keep the state finite."""
+    for task in TASK_NAMES:
+        env = OpfaSimEnv(task, hand, obs_type="pointcloud_state", pointcloud_source="geometry", n_points=64)
+        obs, info = env.reset(seed=1)
+        assert env.action_space.shape == obs["agent_pos"].shape == (6 + env.hand_model.dof,)
+        for _ in range(4):
+            obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+            assert all(np.all(np.isfinite(v)) for v in obs.values()), (hand, task)
+            assert isinstance(info["is_success"], bool)
+        env.close()
+
+
+def test_user_hand_loads_into_a_scene(user_allegro_spec):
+    env = OpfaSimEnv("press_button", str(user_allegro_spec), obs_type="state")
+    obs, _ = env.reset(seed=0)
+    assert obs["agent_pos"].shape == (22,)
+    env.step(env.action_space.sample())
+
+
+@pytest.mark.parametrize("task", TASK_NAMES)
+def test_success_detection(task):
+    """A scripted success is detected from the simulator state; holding still is not a success."""
+    env = OpfaSimEnv(task, "umi", obs_type="state")
+    env.reset(seed=3)
+    expert, success = ScriptedExpert(env, np.random.default_rng(3)), False
+    while not (expert.done or success):
+        _, _, success, _, info = env.step(expert.act())
+    assert success and info["is_success"]
+
+    obs, _ = env.reset(seed=3)
+    hold = obs["agent_pos"].copy()
+    for _ in range(40):
+        _, _, terminated, _, info = env.step(hold)
+        assert not terminated and not info["is_success"]
+    env.close()
+
+
+def test_pick_place_needs_release():
+    """Carrying the banana over the plate without letting go is not a success."""
+    env = OpfaSimEnv("pick_place", "umi", obs_type="state")
+    env.reset(seed=3)
+    expert = ScriptedExpert(env, np.random.default_rng(3))
+    expert.plan[-3].hand = expert.plan[-2].hand = expert.plan[-1].hand = expert.closed  # never open
+    while not expert.done:
+        _, _, terminated, _, _ = env.step(expert.act())
+        assert not terminated
+    env.close()
+
+
+def test_depth_point_cloud_sees_the_object():
+    env = OpfaSimEnv("lift", "umi", obs_type="pointcloud_state", n_points=256)
+    obs, _ = env.reset(seed=0)
+    cloud = obs["pointcloud"].reshape(-1, 3)
+    assert obs["pointcloud"].shape == (768,) and obs["pointcloud"].dtype == np.float32
+    assert np.all(cloud > WORKSPACE_LOW) and np.all(cloud < WORKSPACE_HIGH)
+    can = obs["environment_state"][:3]
+    assert np.sum(np.linalg.norm(cloud[:, :2] - can[:2], axis=1) < 0.04) >= 20
+    frame = env.render()
+    assert frame.dtype == np.uint8 and frame.shape == (240, 320, 3)
+    env.close()
+
+
+def test_regions_place_objects_inside():
+    env = OpfaSimEnv("lift", "umi", regions="far_left", obs_type="state")
+    for seed in range(3):
+        obs, info = env.reset(seed=seed)
+        region = REGIONS["far_left"]
+        x, y = obs["environment_state"][:2]
+        assert info["region"] == "far_left"
+        assert region.x[0] <= x <= region.x[1] and region.y[0] <= y <= region.y[1]
+    assert parse_regions("all") == list(REGIONS)
+    assert parse_regions("near_left, mid_center") == ["near_left", "mid_center"]
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        (
+            {"task": "juggle"},
+            "unknown task 'juggle'; valid tasks: lift, pick_place, press_button, pull_drawer",
+        ),
+        ({"hand": "hook"}, "unknown hand 'hook': not a built-in (ability, allegro"),
+        ({"regions": "moon"}, "unknown region(s) ['moon']; valid regions: all, near_right"),
+        ({"obs_type": "pixels"}, "unknown obs_type 'pixels'; valid obs_types: pointcloud, state"),
+        (
+            {"depth_cameras": "front,top"},
+            "unknown depth camera 'top'; valid depth cameras: front, left, right",
+        ),
+    ],
+)
+def test_bad_names_list_the_valid_ones(kwargs, message):
+    with pytest.raises(ValueError) as err:
+        OpfaSimEnv(**kwargs)
+    assert message in str(err.value)
+    with pytest.raises(ValueError) as err:
+        OpfaEnvConfig(**kwargs)
+    assert message in str(err.value)
+
+
+def test_gym_ids_and_config():
+    env = gym.make("opfa/press_button-v0", hand="umi", obs_type="state")
+    assert env.spec.max_episode_steps == EPISODE_STEPS["press_button"]
+    env.reset(seed=0)
+    env.close()
+    cfg = OpfaEnvConfig(task="pull_drawer", hand="leap", obs_type="pointcloud_state", n_points=32)
+    assert cfg.type == "opfa" and cfg.gym_id == "opfa/pull_drawer-v0"
+    assert cfg.features["action"].shape == cfg.features["agent_pos"].shape == (22,)
+    assert cfg.features["pointcloud"].shape == (96,) and cfg.features["environment_state"].shape == (11,)
+    assert cfg.features_map["pointcloud"] == "observation.pointcloud"
+    vec = cfg.create_envs(n_envs=2)["opfa"][0]
+    obs, _ = vec.reset(seed=[0, 1])
+    assert obs["pointcloud"].shape == (2, 96)
+    vec.close()
