@@ -7,6 +7,7 @@ import logging
 import sys
 
 from lerobot_opfa import demo
+from lerobot_opfa.datasets import commands as dataset_commands
 from lerobot_opfa.envs import commands as sim_commands
 from lerobot_opfa.galr import commands as galr_commands
 from lerobot_opfa.hands import commands as hands_commands
@@ -17,6 +18,7 @@ def build_parser() -> argparse.ArgumentParser:
     subparsers = parser.add_subparsers(dest="command", required=True)
     hands_commands.add_commands(subparsers)
     sim_commands.add_commands(subparsers)
+    dataset_commands.add_commands(subparsers)
     galr_commands.add_commands(subparsers)
     demo.add_command(subparsers)
     return parser

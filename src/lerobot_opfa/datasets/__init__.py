@@ -1,0 +1,1 @@
+"""Cross-embodiment LeRobotDatasets: reading hand layouts, merging per-hand datasets, latent caches."""

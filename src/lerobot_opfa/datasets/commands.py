@@ -1,0 +1,67 @@
+"""`lerobot-opfa dataset ...` (merge, latent, synthetic) and `lerobot-opfa convert-policy-io`."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def add_commands(subparsers: argparse._SubParsersAction) -> None:
+    dataset = subparsers.add_parser("dataset", help="cross-embodiment LeRobotDatasets").add_subparsers(
+        dest="dataset_command", required=True
+    )
+    merge = dataset.add_parser("merge", help="per-hand datasets -> one dataset in the universal-joint layout")
+    merge.add_argument("--inputs", type=Path, nargs="+", required=True, help="per-hand dataset folders")
+    merge.add_argument("--output", type=Path, required=True)
+    merge.add_argument("--galr", help="GaLR checkpoint (folder or repo id): cache z of every frame")
+    merge.add_argument("--repo-id", default="local/opfa_merged")
+    merge.add_argument("--overwrite", action="store_true")
+    merge.set_defaults(func=_merge)
+
+    latent = dataset.add_parser("latent", help="merged dataset -> state/action = wrist + z (stock policies)")
+    latent.add_argument("--input", type=Path, required=True)
+    latent.add_argument("--output", type=Path, required=True)
+    latent.add_argument("--overwrite", action="store_true")
+    latent.set_defaults(func=_latent)
+
+    synthetic = dataset.add_parser("synthetic", help="a small synthetic per-hand dataset (no simulator)")
+    synthetic.add_argument("--hand", required=True)
+    synthetic.add_argument("--output", type=Path, required=True)
+    synthetic.add_argument("--episodes", type=int, default=4)
+    synthetic.add_argument("--frames", type=int, default=50)
+    synthetic.add_argument("--n-points", type=int, default=256)
+    synthetic.add_argument("--seed", type=int, default=0)
+    synthetic.set_defaults(func=_synthetic)
+
+    convert = subparsers.add_parser(
+        "convert-policy-io", help="give a stock policy trained on a latent dataset a joint-space interface"
+    )
+    convert.add_argument("--policy", type=Path, required=True, help="checkpoint folder (pretrained_model)")
+    convert.add_argument("--galr", required=True, help="the GaLR the latent dataset was made with")
+    convert.add_argument("--output", type=Path, required=True)
+    convert.add_argument("--hand", help="hand of observations without an embodiment id (default: inferred)")
+    convert.set_defaults(func=_convert)
+
+
+def _merge(args: argparse.Namespace) -> None:
+    from lerobot_opfa.datasets.merge import merge_datasets
+
+    merge_datasets(args.inputs, args.output, args.galr, args.repo_id, args.overwrite)
+
+
+def _latent(args: argparse.Namespace) -> None:
+    from lerobot_opfa.datasets.latent import latent_dataset
+
+    latent_dataset(args.input, args.output, args.overwrite)
+
+
+def _synthetic(args: argparse.Namespace) -> None:
+    from lerobot_opfa.datasets.synthetic import write_synthetic_dataset
+
+    write_synthetic_dataset(args.output, args.hand, args.episodes, args.frames, args.n_points, seed=args.seed)
+
+
+def _convert(args: argparse.Namespace) -> None:
+    from lerobot_opfa.policy.stock_io import convert_policy_io
+
+    convert_policy_io(args.policy, args.galr, args.output, args.hand)

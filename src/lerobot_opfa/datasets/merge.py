@@ -1,0 +1,173 @@
+"""`lerobot-opfa dataset merge`: per-hand LeRobotDatasets -> one cross-embodiment LeRobotDataset (v3).
+
+Hands have different joint counts, so the merged state/action use one layout for all: the wrist entries,
+the universal joints (zero where a hand has none; `observation.joint_mask` says which exist), and, when a
+GaLR is given, the latent z of every state and action frame, computed once here so that training in GaLR
+space costs what a raw-joint step costs. `observation.embodiment` holds the hand's index (its feature names
+list the hands). Point clouds stay flattened (N*3,) so LeRobot's own dataset tools keep working.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from lerobot.datasets.dataset_metadata import LeRobotDatasetMetadata
+from lerobot.datasets.lerobot_dataset import LeRobotDataset
+from lerobot.utils.constants import ACTION, OBS_STATE
+from tqdm import tqdm
+
+from lerobot_opfa.datasets.io import atomic_directory, read_columns
+from lerobot_opfa.datasets.layout import OPFA_META_FILE, DatasetLayout, latent_names, read_layout
+from lerobot_opfa.hands.registry import load_hand
+from lerobot_opfa.hands.universal import UNIVERSAL_JOINT_NAMES
+from lerobot_opfa.policy.configuration_opfa import OBS_EMBODIMENT, OBS_JOINT_MASK
+
+logger = logging.getLogger(__name__)
+
+BOOKKEEPING = ("timestamp", "frame_index", "episode_index", "index", "task_index")
+NUMERIC = ("float32", "float64", "int64", "int32", "bool")
+
+
+@dataclass
+class _Input:
+    root: Path
+    meta: LeRobotDatasetMetadata
+    layout: DatasetLayout
+
+
+def _open(root: Path, hands: list[str] | None) -> _Input:
+    meta = LeRobotDatasetMetadata(f"local/{root.name}", root=root)
+    layout = read_layout(meta.features, meta.robot_type, root, hands)
+    if layout.kind != "native":
+        raise ValueError(f"{root} is already a merged dataset; merge the per-hand datasets it came from")
+    return _Input(root, meta, layout)
+
+
+def _passthrough(inputs: list[_Input]) -> dict[str, dict]:
+    """Numeric features every input has with the same dtype and shape (besides state and action)."""
+    first = inputs[0].meta.features
+    common = {}
+    for key, feature in first.items():
+        if key in (OBS_STATE, ACTION, *BOOKKEEPING) or feature["dtype"] not in NUMERIC:
+            continue
+        same = all(
+            key in i.meta.features
+            and i.meta.features[key]["dtype"] == feature["dtype"]
+            and tuple(i.meta.features[key]["shape"]) == tuple(feature["shape"])
+            for i in inputs
+        )
+        if same:
+            common[key] = {**feature, "shape": tuple(feature["shape"])}
+    dropped = sorted(
+        {k for i in inputs for k in i.meta.features} - set(common) - {OBS_STATE, ACTION, *BOOKKEEPING}
+    )
+    if dropped:
+        logger.warning("features not shared by all inputs (or not numeric) are left out: %s", dropped)
+    return common
+
+
+def merge_datasets(
+    inputs: list[Path | str],
+    output: Path | str,
+    galr_path: str | None = None,
+    repo_id: str = "local/opfa_merged",
+    overwrite: bool = False,
+) -> Path:
+    """Writes the merged dataset to `output` atomically and returns its path."""
+    galr = None
+    hands = None
+    if galr_path is not None:
+        from lerobot_opfa.policy.galr_ref import known_hand_refs, load_galr
+
+        galr = load_galr(str(galr_path))
+        hands = known_hand_refs(galr)
+    opened = [_open(Path(p).resolve(), hands) for p in inputs]
+    wrist = opened[0].layout.wrist_names
+    fps = opened[0].meta.fps
+    for i in opened:
+        if i.layout.wrist_names != wrist or i.meta.fps != fps:
+            raise ValueError(
+                f"inputs disagree: {i.root} has wrist entries {i.layout.wrist_names} at {i.meta.fps} fps, "
+                f"{opened[0].root} has {wrist} at {fps} fps"
+            )
+    embodiments = list(dict.fromkeys(i.layout.embodiments[0] for i in opened))
+    if galr is not None:
+        unknown = [h for h in embodiments if h not in galr.config.hand_names]
+        if unknown:
+            raise ValueError(f"hand(s) {unknown} are not in the GaLR registry ({galr.config.hand_names})")
+    latent_dim = galr.config.latent_dim if galr is not None else 0
+    universal = list(UNIVERSAL_JOINT_NAMES)
+    names = [*wrist, *universal, *latent_names(latent_dim)]
+    extra = _passthrough(opened)
+    features = {
+        OBS_STATE: {"dtype": "float32", "shape": (len(names),), "names": names},
+        ACTION: {"dtype": "float32", "shape": (len(names),), "names": names},
+        OBS_JOINT_MASK: {"dtype": "float32", "shape": (len(universal),), "names": universal},
+        OBS_EMBODIMENT: {"dtype": "int64", "shape": (1,), "names": embodiments},
+        **extra,
+    }
+    total = sum(i.meta.total_frames for i in opened)
+    with atomic_directory(output, overwrite) as partial:
+        merged = LeRobotDataset.create(
+            repo_id, fps, features, root=partial, robot_type="opfa_merged", use_videos=False
+        )
+        with tqdm(total=total, desc="merging", unit="frame") as progress:
+            for source in opened:
+                _append(merged, source, embodiments, galr, len(wrist), list(extra), progress)
+        merged.finalize()
+        meta = {"embodiments": embodiments, "inputs": [str(i.root) for i in opened], "latent_dim": latent_dim}
+        if galr is not None:
+            from lerobot_opfa.policy.galr_ref import galr_fingerprint
+
+            meta |= {"galr": str(galr_path), "galr_fingerprint": galr_fingerprint(galr)}
+        (partial / OPFA_META_FILE).write_text(json.dumps(meta, indent=2))
+    logger.info("merged %d frames of %s into %s", total, embodiments, output)
+    return Path(output)
+
+
+def _append(merged, source: _Input, embodiments, galr, n_wrist: int, extra: list[str], progress) -> None:
+    hand = (
+        load_hand(source.layout.embodiments[0])
+        if galr is None
+        else galr.hand(source.layout.embodiments[0])[0]
+    )
+    columns = read_columns(source.root, [OBS_STATE, ACTION, *extra, *BOOKKEEPING])
+    order = [source.layout.joint_names.index(j) for j in hand.joint_names]
+    index = hand.universal_index.tolist()
+    mask = np.zeros(len(UNIVERSAL_JOINT_NAMES), np.float32)
+    mask[index] = 1.0
+    tasks = {int(row.task_index): task for task, row in source.meta.tasks.iterrows()}
+    embodiment = np.array([embodiments.index(hand.name)], np.int64)
+
+    def to_layout(values: np.ndarray) -> np.ndarray:
+        q = values[:, n_wrist:][:, order]
+        out = np.zeros((len(values), len(UNIVERSAL_JOINT_NAMES)), np.float32)
+        out[:, index] = q
+        parts = [values[:, :n_wrist], out]
+        if galr is not None:
+            from lerobot_opfa.policy.galr_ref import encode_joints
+
+            parts.append(encode_joints(galr, hand.name, torch.from_numpy(q).float()).cpu().numpy())
+        return np.concatenate(parts, axis=1).astype(np.float32)
+
+    episodes = columns["episode_index"]
+    for episode in dict.fromkeys(episodes.tolist()):
+        rows = np.flatnonzero(episodes == episode)
+        rows = rows[np.argsort(columns["frame_index"][rows])]
+        state, action = to_layout(columns[OBS_STATE][rows]), to_layout(columns[ACTION][rows])
+        for j, row in enumerate(rows):
+            frame = {OBS_STATE: state[j], ACTION: action[j], OBS_JOINT_MASK: mask, OBS_EMBODIMENT: embodiment}
+            for key in extra:
+                dtype = merged.meta.features[key]["dtype"]
+                frame[key] = np.asarray(columns[key][row], dtype=dtype).reshape(
+                    merged.meta.features[key]["shape"]
+                )
+            frame["task"] = tasks[int(columns["task_index"][row])]
+            merged.add_frame(frame)
+        merged.save_episode()
+        progress.update(len(rows))

@@ -1,0 +1,67 @@
+"""Small synthetic per-hand LeRobotDatasets in the layout the simulator records (wrist pose + the hand's
+joints, flattened point cloud, object state). For tests, benchmarks and trying the pipeline without the
+simulator; the motions are smooth random reaches and grasps, not task demonstrations."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from lerobot.datasets.lerobot_dataset import LeRobotDataset
+from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
+
+from lerobot_opfa.hands.registry import load_hand
+from lerobot_opfa.policy.configuration_opfa import OBS_POINTCLOUD
+
+WRIST_NAMES = ("wrist_x", "wrist_y", "wrist_z", "wrist_yaw", "wrist_pitch", "wrist_roll")
+
+
+def write_synthetic_dataset(
+    root: Path | str,
+    hand: str,
+    episodes: int = 2,
+    frames: int = 24,
+    n_points: int = 64,
+    fps: int = 10,
+    seed: int = 0,
+    joint_names: list[str] | None = None,
+) -> Path:
+    """Writes a dataset for `hand` under `root` (`robot_type` = the hand's name). `joint_names` overrides
+    the hand's joint names in the features (to make datasets that do not match their spec)."""
+    model = load_hand(hand)
+    names = [*WRIST_NAMES, *(joint_names or model.joint_names)]
+    features = {
+        OBS_STATE: {"dtype": "float32", "shape": (len(names),), "names": names},
+        ACTION: {"dtype": "float32", "shape": (len(names),), "names": names},
+        OBS_POINTCLOUD: {"dtype": "float32", "shape": (3 * n_points,), "names": None},
+        OBS_ENV_STATE: {"dtype": "float32", "shape": (3,), "names": ["object_x", "object_y", "object_z"]},
+    }
+    repo_id = f"local/{Path(root).name}"
+    dataset = LeRobotDataset.create(repo_id, fps, features, root=root, robot_type=hand, use_videos=False)
+    rng = np.random.default_rng(seed)
+    lower, upper = model.lower.double().numpy(), model.upper.double().numpy()
+    for _ in range(episodes):
+        target = np.concatenate([rng.uniform(-0.2, 0.2, 2), [rng.uniform(0.02, 0.1)]])
+        s = np.linspace(0, 1, frames + 1)[:, None]
+        wrist = np.zeros((frames + 1, 6))
+        wrist[:, :3] = (1 - s) * np.array([0.0, 0.0, 0.3]) + s * (target + [0, 0, 0.05])
+        wrist[:, 3] = rng.uniform(-0.5, 0.5) * s[:, 0]
+        grasp = lower + (upper - lower) * rng.uniform(0.3, 0.9, len(lower))
+        joints = lower + (grasp - lower) * np.clip(2 * s - 1, 0, 1)
+        trajectory = np.concatenate([wrist, joints], axis=1).astype(np.float32)
+        cloud = rng.normal(0, 0.03, (n_points, 3)) + target
+        for t in range(frames):
+            dataset.add_frame(
+                {
+                    OBS_STATE: trajectory[t],
+                    ACTION: trajectory[t + 1],
+                    OBS_POINTCLOUD: (cloud + rng.normal(0, 0.002, cloud.shape))
+                    .reshape(-1)
+                    .astype(np.float32),
+                    OBS_ENV_STATE: target.astype(np.float32),
+                    "task": "lift the object",
+                }
+            )
+        dataset.save_episode()
+    dataset.finalize()
+    return Path(root)

@@ -1,0 +1,1 @@
+"""The `opfa` LeRobot policy: configuration, model, processors (modules named as LeRobot expects)."""

@@ -1,0 +1,171 @@
+"""`OpfaConfig`: the `opfa` policy type (DP3 acting in GaLR space), registered with LeRobot.
+
+Every hyper-parameter lives here once. The fields under "resolved" are filled from the dataset and the GaLR
+checkpoint the first time a policy is built for training, and saved with the checkpoint, so evaluation
+and reloading need neither.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from lerobot.configs import NormalizationMode, PreTrainedConfig
+from lerobot.optim import AdamConfig
+from lerobot.optim.schedulers import CosineDecayWithWarmupSchedulerConfig
+from lerobot.utils.constants import ACTION, OBS_STATE
+
+OBS_POINTCLOUD = "observation.pointcloud"
+OBS_EMBODIMENT = "observation.embodiment"
+OBS_JOINT_MASK = "observation.joint_mask"
+ACTION_SPACES = ("galr", "raw", "per_embodiment")
+WRIST_NORMALIZATIONS = ("per_embodiment", "shared")
+
+
+@PreTrainedConfig.register_subclass("opfa")
+@dataclass
+class OpfaConfig(PreTrainedConfig):
+    """DP3 (point-cloud diffusion policy) whose hand state and action are GaLR latents.
+
+    `action_space` picks the method or a baseline of the paper's tables:
+    - `galr`: state = wrist pose + z = GaLR(hand joints), action = wrist pose + z (OPFA);
+    - `raw`: one embodiment, its raw joints ("w/o co-train");
+    - `per_embodiment`: universal-joint layout, shared trunk, one action head per embodiment
+      ("naive co-train").
+    """
+
+    n_obs_steps: int = 2
+    horizon: int = 16
+    n_action_steps: int = 8
+
+    action_space: str = "galr"
+    galr_path: str | None = None
+    """A GaLR checkpoint (local folder or Hub repo id). Needed to train `galr`; its weights then travel
+    inside the saved processors, so a trained policy does not need it any more."""
+
+    normalization: NormalizationMode = NormalizationMode.MIN_MAX
+    """Per-embodiment normalisation of state and action (MIN_MAX, MEAN_STD or IDENTITY); MIN_MAX keeps z and
+    joints in [-1, 1], the range DDIM clips its samples to."""
+    normalization_mapping: dict[str, NormalizationMode] = field(
+        default_factory=lambda: {"STATE": NormalizationMode.IDENTITY, "ACTION": NormalizationMode.IDENTITY}
+    )
+    """For LeRobot's own (un)normaliser steps, kept in the pipelines as identities: lerobot-train
+    reconfigures them by name when it resumes or fine-tunes a checkpoint. Normalisation is `normalization`."""
+    wrist_normalization: str = "per_embodiment"
+    """`per_embodiment`: each hand's wrist poses span [-1, 1] on their own (robust to hands whose data sit
+    in different places); `shared`: one range pooled over all hands (keeps absolute positions comparable,
+    what spatial generalisation across hands needs)."""
+
+    # resolved from the dataset and the GaLR at the first training run
+    embodiments: list[str] = field(default_factory=list)
+    """Hands trained on; a frame's embodiment id indexes this list."""
+    wrist_names: list[str] = field(default_factory=list)
+    """Leading state/action entries that are not hand joints (the wrist pose)."""
+    latent_dim: int | None = None
+
+    # DP3 point encoder
+    pointcloud_widths: tuple[int, ...] = (64, 128, 256)
+    pointcloud_feature_dim: int = 64
+
+    # FiLM-conditioned 1-D U-Net (DP3 uses 512/1024/2048; this default trains on a CPU)
+    down_dims: tuple[int, ...] = (128, 256, 384)
+    kernel_size: int = 5
+    n_groups: int = 8
+    diffusion_step_embed_dim: int = 128
+    use_film_scale_modulation: bool = True
+
+    # DDIM
+    num_train_timesteps: int = 100
+    num_inference_steps: int = 10
+    beta_schedule: str = "squaredcos_cap_v2"
+    beta_start: float = 0.0001
+    beta_end: float = 0.02
+    prediction_type: str = "sample"
+    clip_sample: bool = True
+    clip_sample_range: float = 1.0
+
+    # training
+    optimizer_lr: float = 1e-4
+    optimizer_betas: tuple[float, float] = (0.95, 0.999)
+    optimizer_eps: float = 1e-8
+    optimizer_weight_decay: float = 1e-6
+    scheduler_warmup_steps: int = 500
+    scheduler_decay_steps: int = 100_000
+
+    def __post_init__(self):
+        super().__post_init__()
+        self.down_dims = tuple(self.down_dims)
+        self.pointcloud_widths = tuple(self.pointcloud_widths)
+        self.optimizer_betas = tuple(self.optimizer_betas)
+        for name, value, valid in (
+            ("action_space", self.action_space, ACTION_SPACES),
+            ("wrist_normalization", self.wrist_normalization, WRIST_NORMALIZATIONS),
+            ("prediction_type", self.prediction_type, ("sample", "epsilon")),
+            ("beta_schedule", self.beta_schedule, ("squaredcos_cap_v2", "linear")),
+        ):
+            if value not in valid:
+                raise ValueError(f"`{name}` must be one of {list(valid)}, got '{value}'")
+        factor = 2 ** (len(self.down_dims) - 1)
+        if self.horizon % factor:
+            raise ValueError(
+                f"`horizon` ({self.horizon}) must be a multiple of {factor} for {self.down_dims=}"
+            )
+        if not 0 < self.n_action_steps <= self.horizon - self.n_obs_steps + 1:
+            raise ValueError(
+                f"need 0 < n_action_steps <= horizon - n_obs_steps + 1, got {self.n_action_steps=}, "
+                f"{self.horizon=}, {self.n_obs_steps=}"
+            )
+        if not 0 < self.num_inference_steps <= self.num_train_timesteps:
+            raise ValueError("need 0 < num_inference_steps <= num_train_timesteps")
+        if self.action_space == "raw" and len(self.embodiments) > 1:
+            raise ValueError(
+                f"action_space 'raw' trains one embodiment, got {self.embodiments}; "
+                "use 'per_embodiment' or 'galr' for several"
+            )
+
+    @property
+    def drop_n_last_frames(self) -> int:
+        """Frames at an episode's end whose action chunk would be mostly padding (the sampler skips them)."""
+        return self.horizon - self.n_action_steps - self.n_obs_steps + 1
+
+    @property
+    def observation_delta_indices(self) -> list[int]:
+        return list(range(1 - self.n_obs_steps, 1))
+
+    @property
+    def action_delta_indices(self) -> list[int]:
+        return list(range(1 - self.n_obs_steps, 1 - self.n_obs_steps + self.horizon))
+
+    @property
+    def reward_delta_indices(self) -> None:
+        return None
+
+    def get_optimizer_preset(self) -> AdamConfig:
+        return AdamConfig(
+            lr=self.optimizer_lr,
+            betas=self.optimizer_betas,
+            eps=self.optimizer_eps,
+            weight_decay=self.optimizer_weight_decay,
+        )
+
+    def get_scheduler_preset(self) -> CosineDecayWithWarmupSchedulerConfig:
+        return CosineDecayWithWarmupSchedulerConfig(
+            num_warmup_steps=self.scheduler_warmup_steps,
+            num_decay_steps=self.scheduler_decay_steps,
+            peak_lr=self.optimizer_lr,
+            decay_lr=self.optimizer_lr * 0.01,
+        )
+
+    def validate_features(self) -> None:
+        missing = [k for k in (OBS_STATE, OBS_POINTCLOUD) if k not in (self.input_features or {})]
+        if missing or ACTION not in (self.output_features or {}):
+            raise ValueError(
+                f"the opfa policy needs inputs {OBS_STATE} and {OBS_POINTCLOUD} and output {ACTION}; "
+                f"missing {missing + ([] if ACTION in (self.output_features or {}) else [ACTION])}"
+            )
+        shape = tuple(self.input_features[OBS_POINTCLOUD].shape)
+        if len(shape) != 1 or shape[0] % 3:
+            raise ValueError(f"{OBS_POINTCLOUD} must be flattened xyz of shape (N*3,), got {shape}")
+
+    @property
+    def n_points(self) -> int:
+        return self.input_features[OBS_POINTCLOUD].shape[0] // 3

@@ -1,0 +1,47 @@
+"""The frozen GaLR a policy or a dataset cache refers to: loading it once, and a fingerprint of its weights
+so cached latents are only trusted when they came from the same model."""
+
+from __future__ import annotations
+
+import hashlib
+from functools import cache
+
+import torch
+
+from lerobot_opfa.galr.model import Galr
+from lerobot_opfa.hands.registry import builtin_hands
+
+
+@cache
+def load_galr(path: str) -> Galr:
+    """A GaLR checkpoint (local folder or Hub repo id), frozen, in eval mode; loaded once per process."""
+    galr = Galr.from_pretrained(path).eval()
+    galr.requires_grad_(False)
+    return galr
+
+
+def galr_fingerprint(galr: Galr) -> str:
+    """sha256 over the weights (names, shapes and bytes): equal iff the model computes the same latents."""
+    digest = hashlib.sha256()
+    for name, tensor in sorted(galr.state_dict().items()):
+        digest.update(name.encode())
+        digest.update(str(tuple(tensor.shape)).encode())
+        digest.update(tensor.detach().cpu().contiguous().numpy().tobytes())
+    return digest.hexdigest()
+
+
+def known_hand_refs(galr: Galr | None) -> list[str]:
+    """Hands a dataset may name, as `load_hand` takes them: the built-ins plus the GaLR's own (spec paths).
+    Wider than the GaLR's registry on purpose, so a hand it lacks is recognised and reported as such."""
+    builtins = list(builtin_hands())
+    extra = [h["spec"] for h in galr.config.hands if h["name"] not in builtins] if galr is not None else []
+    return builtins + extra
+
+
+@torch.no_grad()
+def encode_joints(galr: Galr, hand: str, q: torch.Tensor, batch_size: int = 1024) -> torch.Tensor:
+    """(..., dof) joints of `hand` -> (..., latent_dim), in chunks so big caches fit in memory."""
+    flat = q.reshape(-1, q.shape[-1]).to(galr.device, torch.float32)
+    z = [galr.encode_joints(hand, flat[i : i + batch_size]) for i in range(0, len(flat), batch_size)]
+    out = torch.cat(z) if z else flat.new_zeros(0, galr.config.latent_dim)
+    return out.reshape(*q.shape[:-1], -1)

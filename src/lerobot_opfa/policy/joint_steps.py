@@ -1,0 +1,299 @@
+"""Processor steps between a hand's joints and the policy's action space (registered, saved by name).
+
+Preprocessor: `opfa_encode_joints` turns `observation.state` and `action` (native layout of one hand, or a
+merged dataset's universal layout with `observation.embodiment`) into the policy space: wrist + z for
+`galr`, wrist + that hand's joints for `raw`, wrist + masked universal joints for `per_embodiment`. It also
+leaves the batch's embodiment ids in `observation.embodiment`.
+
+Postprocessor: `opfa_decode_joints` maps policy-space actions back to the attached hand's joints (for
+`galr` through the GaLR decoder). A postprocessor only sees the action, so it reads which hand produced it
+from its preprocessor partner: both carry the same `link` id (saved in both JSON configs), the same way
+LeRobot's relative/absolute action steps pair up.
+"""
+
+from __future__ import annotations
+
+import weakref
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import torch
+from lerobot.configs.types import PipelineFeatureType, PolicyFeature
+from lerobot.processor import ObservationProcessorStep, ProcessorStep, ProcessorStepRegistry, TransitionKey
+from lerobot.utils.constants import ACTION, OBS_STATE
+
+from lerobot_opfa.policy.configuration_opfa import OBS_EMBODIMENT, OBS_POINTCLOUD
+
+if TYPE_CHECKING:  # the GaLR and hand models import FK and mesh libraries: only when a step is built
+    from lerobot_opfa.galr.model import Galr
+    from lerobot_opfa.hands.model import HandModel
+
+_ENCODERS: weakref.WeakValueDictionary[str, OpfaEncodeJointsStep] = weakref.WeakValueDictionary()
+"""link id -> the preprocessor step that last processed a batch (its postprocessor partner reads from it)."""
+
+
+@ProcessorStepRegistry.register("opfa_pointcloud_batch")
+@dataclass
+class PointCloudBatchStep(ObservationProcessorStep):
+    """Adds the batch dimension to an unbatched `observation.pointcloud` (LeRobot's batch step only
+    knows state, environment state and images)."""
+
+    def observation(self, observation: dict[str, Any]) -> dict[str, Any]:
+        cloud = observation.get(OBS_POINTCLOUD)
+        if isinstance(cloud, torch.Tensor) and cloud.dim() == 1:
+            observation[OBS_POINTCLOUD] = cloud.unsqueeze(0)
+        return observation
+
+    def transform_features(self, features):
+        return features
+
+
+@dataclass
+class _HandSpace:
+    """What both joint steps share: the embodiments, their hands, the GaLR and the policy-space widths."""
+
+    action_space: str = "galr"
+    embodiments: list[str] = field(default_factory=list)
+    hand_refs: list[str] = field(default_factory=list)
+    """Per embodiment: a built-in name or a spec path (what `load_hand` takes)."""
+    wrist_dim: int = 6
+    galr_config: dict | None = None
+    link: str = ""
+    galr: Galr | None = field(default=None, repr=False)
+    """Runtime object: built from `galr_config` when loading, weights restored by `load_state_dict`."""
+
+    def __post_init__(self):
+        if self.action_space == "galr" and self.galr is None:
+            if self.galr_config is None:
+                raise ValueError("action_space 'galr' needs a GaLR (galr_config is missing)")
+            from lerobot_opfa.galr.model import Galr
+
+            self.galr = Galr(self.galr_config).eval().requires_grad_(False)
+        self._hands: dict[int, HandModel] = {}
+
+    def model(self, index: int) -> HandModel:
+        if index not in self._hands:
+            from lerobot_opfa.hands.registry import load_hand
+
+            self._hands[index] = load_hand(self.hand_refs[index])
+        return self._hands[index]
+
+    def galr_on(self, device: torch.device) -> Galr:
+        if self.galr.device != device:
+            self.galr.to(device)
+        return self.galr
+
+    def config_dict(self) -> dict[str, Any]:
+        return {
+            "action_space": self.action_space,
+            "embodiments": list(self.embodiments),
+            "hand_refs": list(self.hand_refs),
+            "wrist_dim": self.wrist_dim,
+            "galr_config": self.galr_config,
+            "link": self.link,
+        }
+
+    def galr_state(self, prefix: str) -> dict[str, torch.Tensor]:
+        if self.galr is None:
+            return {}
+        return {k: v.detach().cpu() for k, v in self.galr.state_dict().items() if k.startswith(prefix)}
+
+    def load_galr_state(self, state: dict[str, torch.Tensor], prefix: str) -> None:
+        if self.galr is None:
+            return
+        result = self.galr.load_state_dict(state, strict=False)
+        missing = [k for k in result.missing_keys if k.startswith(prefix)]
+        if missing or result.unexpected_keys:
+            raise ValueError(
+                f"GaLR weights do not fit: missing {missing}, unexpected {result.unexpected_keys}"
+            )
+
+    def single_id(self, ids: torch.Tensor) -> int:
+        unique = ids.unique()
+        if len(unique) != 1:
+            names = [self.embodiments[i] for i in unique.tolist()]
+            raise ValueError(f"a batch to decode must come from one hand, got {names}")
+        return int(unique[0])
+
+
+@ProcessorStepRegistry.register("opfa_encode_joints")
+@dataclass
+class OpfaEncodeJointsStep(_HandSpace, ProcessorStep):
+    hand: str | None = None
+    """Hand of batches that carry no embodiment id (native layout). None: the trained hand whose joint
+    count fits the state width, or an error when several do."""
+    native_joint_names: list[str] = field(default_factory=list)
+    """Column order of `hand`'s joints in the training dataset (any order of the spec's names)."""
+    use_cached_latents: bool = False
+    """Take z from a merged dataset's cache (set only when its GaLR fingerprint matches)."""
+
+    def __post_init__(self):
+        super().__post_init__()
+        self.last_ids: torch.Tensor | None = None
+
+    def __call__(self, transition):
+        new = transition.copy()
+        obs = dict(new[TransitionKey.OBSERVATION])
+        state = obs[OBS_STATE].float()
+        action = new.get(TransitionKey.ACTION)
+        if OBS_EMBODIMENT in obs:
+            emb = obs[OBS_EMBODIMENT]
+            ids = emb.reshape(len(emb), -1)[:, -1].long().to(state.device)
+            convert = self._from_universal
+        else:
+            index = self._native_index(state.shape[-1])
+            ids = torch.full((len(state),), index, dtype=torch.long, device=state.device)
+            convert = self._from_native
+        obs[OBS_STATE] = convert(state, ids)
+        if isinstance(action, torch.Tensor):
+            new[TransitionKey.ACTION] = convert(action.float(), ids)
+        obs[OBS_EMBODIMENT] = ids
+        self.last_ids = ids
+        _ENCODERS[self.link] = self
+        new[TransitionKey.OBSERVATION] = obs
+        return new
+
+    # --- native layout: wrist + one hand's joints ----------------------------------------------------
+    def _native_index(self, width: int) -> int:
+        if self.hand is not None:
+            return self.embodiments.index(self.hand)
+        dof = width - self.wrist_dim
+        fits = [i for i in range(len(self.embodiments)) if self.model(i).dof == dof]
+        if len(fits) != 1:
+            raise ValueError(
+                f"cannot tell which hand a state of width {width} belongs to (trained on "
+                f"{self.embodiments}, {len(fits)} fit); pass the hand: preprocessor_overrides="
+                "{'opfa_encode_joints': {'hand': NAME}}, or add observation.embodiment to the batch"
+            )
+        return fits[0]
+
+    def _from_native(self, x: torch.Tensor, ids: torch.Tensor) -> torch.Tensor:
+        index = int(ids[0])
+        hand = self.model(index)
+        wrist, q = x[..., : self.wrist_dim], x[..., self.wrist_dim :]
+        if q.shape[-1] != hand.dof:
+            raise ValueError(
+                f"state/action width {x.shape[-1]} != wrist {self.wrist_dim} + {hand.dof} joints"
+            )
+        if self.embodiments[index] == self.hand and self.native_joint_names:
+            order = [self.native_joint_names.index(j) for j in hand.joint_names]
+            q = q[..., order]
+        if self.action_space == "galr":
+            z = _encode(self.galr_on(x.device), self.embodiments[index], q)
+            return torch.cat([wrist, z], dim=-1)
+        if self.action_space == "raw":
+            return torch.cat([wrist, q], dim=-1)
+        universal = x.new_zeros(*x.shape[:-1], n_universal())
+        universal[..., hand.universal_index] = q
+        return torch.cat([wrist, universal], dim=-1)
+
+    # --- merged layout: wrist + universal joints [+ cached z] ----------------------------------------
+    def _from_universal(self, x: torch.Tensor, ids: torch.Tensor) -> torch.Tensor:
+        w, u = self.wrist_dim, self.wrist_dim + n_universal()
+        wrist, universal = x[..., :w], x[..., w:u]
+        if self.action_space == "galr":
+            d = self.galr.config.latent_dim
+            if self.use_cached_latents and x.shape[-1] == u + d:
+                return torch.cat([wrist, x[..., u:]], dim=-1)
+            z = x.new_zeros(*x.shape[:-1], d)
+            for index in ids.unique().tolist():
+                rows = ids == index
+                q = universal[rows][..., self.model(index).universal_index]
+                z[rows] = _encode(self.galr_on(x.device), self.embodiments[index], q)
+            return torch.cat([wrist, z], dim=-1)
+        if self.action_space == "raw":
+            return torch.cat([wrist, universal[..., self.model(0).universal_index]], dim=-1)
+        mask = torch.stack([self._mask(i) for i in range(len(self.embodiments))]).to(x.device)
+        row_mask = mask[ids].view(len(ids), *([1] * (x.dim() - 2)), n_universal())
+        return torch.cat([wrist, universal * row_mask], dim=-1)
+
+    def _mask(self, index: int) -> torch.Tensor:
+        mask = torch.zeros(n_universal())
+        mask[self.model(index).universal_index] = 1.0
+        return mask
+
+    def get_config(self) -> dict[str, Any]:
+        return {
+            **self.config_dict(),
+            "hand": self.hand,
+            "native_joint_names": list(self.native_joint_names),
+            "use_cached_latents": self.use_cached_latents,
+        }
+
+    def state_dict(self) -> dict[str, torch.Tensor]:
+        return self.galr_state("encoder.")
+
+    def load_state_dict(self, state: dict[str, torch.Tensor]) -> None:
+        self.load_galr_state(state, "encoder.")
+
+    def transform_features(self, features):
+        width = self.wrist_dim + self.policy_width()
+        for kind, key in ((PipelineFeatureType.OBSERVATION, OBS_STATE), (PipelineFeatureType.ACTION, ACTION)):
+            if key in features.get(kind, {}):
+                features[kind][key] = PolicyFeature(type=features[kind][key].type, shape=(width,))
+        return features
+
+    def policy_width(self) -> int:
+        """Width after the wrist entries in the policy space."""
+        if self.action_space == "galr":
+            return self.galr.config.latent_dim
+        return self.model(0).dof if self.action_space == "raw" else n_universal()
+
+
+@ProcessorStepRegistry.register("opfa_decode_joints")
+@dataclass
+class OpfaDecodeJointsStep(_HandSpace, ProcessorStep):
+    """Policy-space actions (B, [T], wrist + ...) -> wrist + the attached hand's joints in spec order."""
+
+    def __call__(self, transition):
+        new = transition.copy()
+        action = new[TransitionKey.ACTION]
+        index = self.single_id(embodiment_ids(self.link, len(action), len(self.embodiments)))
+        hand = self.model(index)
+        wrist, rest = action[..., : self.wrist_dim], action[..., self.wrist_dim :]
+        if self.action_space == "galr":
+            z = rest.reshape(-1, rest.shape[-1])
+            q = self.galr_on(action.device).decode(z, self.embodiments[index]).reshape(*rest.shape[:-1], -1)
+        elif self.action_space == "raw":
+            q = rest
+        else:
+            q = rest[..., hand.universal_index]
+        new[TransitionKey.ACTION] = torch.cat([wrist, q.to(wrist.dtype)], dim=-1)
+        return new
+
+    def get_config(self) -> dict[str, Any]:
+        return self.config_dict()
+
+    def state_dict(self) -> dict[str, torch.Tensor]:
+        return self.galr_state("decoder.")
+
+    def load_state_dict(self, state: dict[str, torch.Tensor]) -> None:
+        self.load_galr_state(state, "decoder.")
+
+    def transform_features(self, features):
+        return features
+
+
+def _encode(galr: Galr, hand: str, q: torch.Tensor) -> torch.Tensor:
+    from lerobot_opfa.policy.galr_ref import encode_joints
+
+    return encode_joints(galr, hand, q)
+
+
+def n_universal() -> int:
+    from lerobot_opfa.hands.universal import UNIVERSAL_JOINT_NAMES
+
+    return len(UNIVERSAL_JOINT_NAMES)
+
+
+def embodiment_ids(link: str, batch: int, n_embodiments: int) -> torch.Tensor:
+    """Embodiment ids of the batch the linked preprocessor saw last (a one-hand policy needs none)."""
+    encoder = _ENCODERS.get(link)
+    if encoder is not None and encoder.last_ids is not None and len(encoder.last_ids) == batch:
+        return encoder.last_ids
+    if n_embodiments == 1:
+        return torch.zeros(batch, dtype=torch.long)
+    raise ValueError(
+        "this postprocessor needs to know which hand produced the actions: run its preprocessor (same "
+        f"link '{link}') on the observation first"
+    )

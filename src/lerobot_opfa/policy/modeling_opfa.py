@@ -1,0 +1,152 @@
+"""`OpfaPolicy`: DP3 in GaLR space. Point-cloud features and the (wrist + z) state of the last
+`n_obs_steps` frames condition a U-Net that denoises a chunk of (wrist + z) actions with DDIM.
+
+The policy never sees joints: the preprocessor maps them to its space and the postprocessor back, so the
+same network serves a 1-DoF gripper and a 16-DoF hand.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+import torch
+import torch.nn.functional as F  # noqa: N812
+from lerobot.policies.pretrained import PreTrainedPolicy
+from lerobot.policies.utils import populate_queues
+from lerobot.utils.constants import ACTION, OBS_STATE
+from torch import Tensor
+
+from lerobot_opfa.galr.pointnet import PointNetEncoder
+from lerobot_opfa.hands.registry import load_hand
+from lerobot_opfa.hands.universal import UNIVERSAL_JOINT_NAMES
+from lerobot_opfa.policy.configuration_opfa import OBS_EMBODIMENT, OBS_POINTCLOUD, OpfaConfig
+from lerobot_opfa.policy.diffusion import ConditionalUnet1d, Ddim
+
+
+def policy_width(config: OpfaConfig) -> int:
+    """Width of the policy's state and action vectors: wrist + z | the hand's joints | universal joints."""
+    if config.action_space == "galr":
+        rest = config.latent_dim
+    elif config.action_space == "raw":
+        rest = load_hand(config.embodiments[0]).dof
+    else:
+        rest = len(UNIVERSAL_JOINT_NAMES)
+    return len(config.wrist_names) + rest
+
+
+class OpfaPolicy(PreTrainedPolicy):
+    config_class = OpfaConfig
+    name = "opfa"
+
+    def __init__(self, config: OpfaConfig, dataset_meta=None, **kwargs):
+        super().__init__(config)
+        config.validate_features()
+        meta = dataset_meta if dataset_meta is not None else getattr(config, "_runtime_dataset_meta", None)
+        if meta is not None:
+            from lerobot_opfa.policy.processor_opfa import resolve_config
+
+            resolve_config(config, meta)
+        if not config.embodiments or (config.action_space == "galr" and config.latent_dim is None):
+            raise ValueError("an opfa policy is built from a dataset (dataset_meta) or a trained checkpoint")
+        self.config = config
+        width = policy_width(config)
+        self.point_encoder = PointNetEncoder(
+            config.pointcloud_feature_dim, config.pointcloud_widths, in_dim=3
+        )
+        n_heads = len(config.embodiments) if config.action_space == "per_embodiment" else 1
+        self.unet = ConditionalUnet1d(
+            action_dim=width,
+            cond_dim=config.n_obs_steps * (config.pointcloud_feature_dim + width),
+            down_dims=config.down_dims,
+            kernel=config.kernel_size,
+            groups=config.n_groups,
+            step_embed_dim=config.diffusion_step_embed_dim,
+            use_scale=config.use_film_scale_modulation,
+            n_heads=n_heads,
+        )
+        self.ddim = Ddim(
+            config.num_train_timesteps,
+            config.num_inference_steps,
+            config.beta_schedule,
+            config.beta_start,
+            config.beta_end,
+            config.prediction_type,
+            config.clip_sample_range if config.clip_sample else None,
+        )
+        if config.action_space == "per_embodiment":
+            masks = torch.ones(len(config.embodiments), width)
+            wrist = len(config.wrist_names)
+            for e, hand in enumerate(config.embodiments):
+                present = torch.zeros(len(UNIVERSAL_JOINT_NAMES))
+                present[load_hand(hand).universal_index] = 1
+                masks[e, wrist:] = present
+            self.register_buffer("loss_masks", masks, persistent=False)
+        self.reset()
+
+    def get_optim_params(self) -> dict:
+        return self.parameters()
+
+    def reset(self) -> None:
+        """Clears the observation history and the queued actions; call on env.reset()."""
+        keys = (OBS_STATE, OBS_POINTCLOUD, OBS_EMBODIMENT)
+        self._queues = {k: deque(maxlen=self.config.n_obs_steps) for k in keys}
+        self._queues[ACTION] = deque(maxlen=self.config.n_action_steps)
+
+    # --- conditioning ------------------------------------------------------------------------------
+    def encode_observation(self, batch: dict[str, Tensor]) -> Tensor:
+        """state (B, n_obs, S), pointcloud (B, n_obs, N*3) -> global condition (B, n_obs * (F + S))."""
+        cloud = batch[OBS_POINTCLOUD]
+        b, n_obs = cloud.shape[:2]
+        features = self.point_encoder(cloud.reshape(b * n_obs, -1, 3)).view(b, n_obs, -1)
+        return torch.cat([features, batch[OBS_STATE]], dim=-1).flatten(1)
+
+    @staticmethod
+    def _embodiment(batch: dict[str, Tensor]) -> Tensor:
+        ids = batch[OBS_EMBODIMENT]
+        return ids.reshape(len(ids), -1)[:, -1].long()
+
+    # --- training ----------------------------------------------------------------------------------
+    def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
+        """Denoising loss of the action chunk (prediction target: the clean sample by default)."""
+        cond = self.encode_observation(batch)
+        x0 = batch[ACTION]
+        noise = torch.randn_like(x0)
+        t = torch.randint(0, self.config.num_train_timesteps, (len(x0),), device=x0.device)
+        head = self._embodiment(batch)
+        pred = self.unet(self.ddim.add_noise(x0, noise, t), t, cond, head)
+        error = F.mse_loss(pred, self.ddim.target(x0, noise), reduction="none")
+        if self.config.action_space == "per_embodiment":
+            mask = self.loss_masks[head].unsqueeze(1).expand_as(error)
+            loss = (error * mask).sum() / mask.sum()
+        else:
+            loss = error.mean()
+        return loss, {}
+
+    # --- inference ---------------------------------------------------------------------------------
+    @torch.no_grad()
+    def predict_action_chunk(self, batch: dict[str, Tensor], noise: Tensor | None = None) -> Tensor:
+        """(B, n_action_steps, A) normalised policy-space actions from the current observation history
+        (the queues, filled by `select_action`) or from a batch that already has the time axis."""
+        if any(len(self._queues[k]) for k in (OBS_STATE, OBS_POINTCLOUD)):
+            batch = {k: torch.stack(list(self._queues[k]), dim=1) for k in (OBS_STATE, OBS_POINTCLOUD)} | {
+                OBS_EMBODIMENT: self._queues[OBS_EMBODIMENT][-1]
+            }
+        cond = self.encode_observation(batch)
+        head = self._embodiment(batch)
+        b = len(cond)
+        shape = (b, self.config.horizon, self.unet.action_dim)
+        if noise is None:
+            noise = torch.randn(shape, device=cond.device, dtype=cond.dtype)
+        actions = self.ddim.sample(lambda x, t: self.unet(x, t, cond, head), noise)
+        start = self.config.n_obs_steps - 1
+        return actions[:, start : start + self.config.n_action_steps]
+
+    @torch.no_grad()
+    def select_action(self, batch: dict[str, Tensor], noise: Tensor | None = None) -> Tensor:
+        """One action per call; a new chunk is sampled every `n_action_steps` calls (as in LeRobot's
+        diffusion policy: observations n-o+1..n condition actions n..n+a-1)."""
+        batch = {k: v for k, v in batch.items() if k != ACTION}
+        self._queues = populate_queues(self._queues, batch)
+        if not self._queues[ACTION]:
+            self._queues[ACTION].extend(self.predict_action_chunk({}, noise=noise).transpose(0, 1))
+        return self._queues[ACTION].popleft()

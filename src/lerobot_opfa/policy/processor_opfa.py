@@ -1,0 +1,181 @@
+"""`make_opfa_pre_post_processors`: the opfa policy's processor pipelines (found by LeRobot by name).
+
+Preprocessor: rename -> batch -> batch point clouds -> device -> joints to policy space (z for `galr`)
+-> per-embodiment normalisation. Postprocessor: unnormalise -> policy space to the hand's joints -> CPU.
+The GaLR's encoder weights are saved with the preprocessor and its decoder with the postprocessor, so a
+checkpoint (or a Hub repo) is self-contained.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import uuid
+from pathlib import Path
+from typing import Any
+
+import torch
+from lerobot.processor import (
+    AddBatchDimensionProcessorStep,
+    DeviceProcessorStep,
+    NormalizerProcessorStep,
+    PolicyProcessorPipeline,
+    RenameObservationsProcessorStep,
+    TransitionKey,
+    UnnormalizerProcessorStep,
+    create_transition,
+)
+from lerobot.processor.factory import make_policy_processor_pipelines
+from lerobot.utils.constants import ACTION, OBS_STATE
+
+from lerobot_opfa.datasets.io import read_columns
+from lerobot_opfa.datasets.layout import DatasetLayout, read_layout
+from lerobot_opfa.galr.model import Galr
+from lerobot_opfa.hands.registry import builtin_hands
+from lerobot_opfa.policy.configuration_opfa import OBS_EMBODIMENT, OpfaConfig
+from lerobot_opfa.policy.galr_ref import galr_fingerprint, known_hand_refs, load_galr
+from lerobot_opfa.policy.joint_steps import OpfaDecodeJointsStep, OpfaEncodeJointsStep, PointCloudBatchStep
+from lerobot_opfa.policy.normalization import OpfaNormalizeStep, OpfaUnnormalizeStep, affine_tables
+
+logger = logging.getLogger(__name__)
+
+STATS_MAX_ENCODED_FRAMES = 4096
+"""Frames encoded through the GaLR for z statistics when a dataset has no usable latent cache."""
+
+
+def policy_galr(config: OpfaConfig) -> Galr | None:
+    if config.action_space != "galr":
+        return None
+    if not config.galr_path:
+        raise ValueError("action_space 'galr' needs --policy.galr_path (a GaLR checkpoint folder or repo id)")
+    return load_galr(str(config.galr_path))
+
+
+def resolve_config(config: OpfaConfig, dataset_meta: Any) -> DatasetLayout:
+    """Fill the config's dataset-derived fields (embodiments, wrist names, latent size) from a dataset."""
+    galr = policy_galr(config)
+    layout = read_layout(
+        dataset_meta.features,
+        dataset_meta.robot_type,
+        dataset_meta.root,
+        hands=known_hand_refs(galr),
+    )
+    if config.embodiments and config.embodiments != layout.embodiments:
+        raise ValueError(
+            f"this policy was built for embodiments {config.embodiments}; "
+            f"the dataset holds {layout.embodiments}"
+        )
+    if galr is not None:
+        unknown = [h for h in layout.embodiments if h not in galr.config.hand_names]
+        if unknown:
+            raise ValueError(
+                f"hand(s) {unknown} are not in the GaLR registry of {config.galr_path} "
+                f"({', '.join(galr.config.hand_names)}); pretrain a GaLR that includes them"
+            )
+        config.latent_dim = galr.config.latent_dim
+    if config.action_space == "raw" and len(layout.embodiments) != 1:
+        raise ValueError(
+            f"action_space 'raw' trains one embodiment; the dataset holds {layout.embodiments}. "
+            "Use 'per_embodiment' (naive co-training) or 'galr'"
+        )
+    config.embodiments, config.wrist_names = list(layout.embodiments), list(layout.wrist_names)
+    return layout
+
+
+def _hand_refs(embodiments: list[str], galr: Galr | None) -> list[str]:
+    """What `load_hand` takes for each embodiment: built-in names, else the GaLR's recorded spec path."""
+    records = {h["name"]: h["spec"] for h in galr.config.hands} if galr is not None else {}
+    builtins = builtin_hands()
+    refs = []
+    for name in embodiments:
+        if name not in builtins and name not in records:
+            raise ValueError(f"hand '{name}' is neither built in nor in the GaLR registry")
+        refs.append(name if name in builtins else records[name])
+    return refs
+
+
+def _policy_space_tables(
+    config: OpfaConfig, layout: DatasetLayout, encoder: OpfaEncodeJointsStep, root: Path
+) -> dict[str, torch.Tensor]:
+    columns = [OBS_STATE, ACTION] + ([OBS_EMBODIMENT] if layout.kind == "merged" else [])
+    frames = {k: torch.tensor(v, dtype=torch.float32) for k, v in read_columns(root, columns).items()}
+    n = len(frames[OBS_STATE])
+    subsample = config.action_space == "galr" and not encoder.use_cached_latents
+    if subsample and n > STATS_MAX_ENCODED_FRAMES:
+        keep = torch.randperm(n, generator=torch.Generator().manual_seed(0))[:STATS_MAX_ENCODED_FRAMES]
+        frames = {k: v[keep] for k, v in frames.items()}
+    observation = {OBS_STATE: frames[OBS_STATE]}
+    if OBS_EMBODIMENT in frames:
+        observation[OBS_EMBODIMENT] = frames[OBS_EMBODIMENT].long()
+    out = encoder(create_transition(observation=observation, action=frames[ACTION]))
+    ids = out[TransitionKey.OBSERVATION][OBS_EMBODIMENT]
+    encoder.last_ids = None
+    wrist = len(config.wrist_names)
+    tables = {}
+    for key, values in (
+        (OBS_STATE, out[TransitionKey.OBSERVATION][OBS_STATE]),
+        (ACTION, out[TransitionKey.ACTION]),
+    ):
+        pooled = torch.zeros(values.shape[-1], dtype=torch.bool)
+        pooled[:wrist] = config.wrist_normalization == "shared"
+        pooled[wrist:] = config.action_space == "galr"
+        tables[f"{key}.shift"], tables[f"{key}.scale"] = affine_tables(
+            values, ids, len(config.embodiments), config.normalization, pooled
+        )
+    return tables
+
+
+def make_opfa_pre_post_processors(
+    config: OpfaConfig,
+    dataset_stats: dict[str, dict[str, torch.Tensor]] | None = None,
+    dataset_meta: Any | None = None,
+) -> tuple[PolicyProcessorPipeline, PolicyProcessorPipeline]:
+    """Fresh pipelines for training on `dataset_meta`'s dataset (lerobot-train passes it through the
+    config as `_runtime_dataset_meta`). Per-embodiment statistics are computed from the dataset's frames,
+    so `dataset_stats` (pooled over hands) is not used."""
+    meta = dataset_meta if dataset_meta is not None else getattr(config, "_runtime_dataset_meta", None)
+    if meta is None:
+        raise ValueError("opfa processors are built from the training dataset: pass dataset_meta")
+    layout = resolve_config(config, meta)
+    galr = policy_galr(config)
+    cached = (
+        galr is not None
+        and layout.latent_dim == galr.config.latent_dim
+        and layout.galr_fingerprint == galr_fingerprint(galr)
+    )
+    if galr is not None and layout.latent_dim and not cached:
+        logger.warning("the dataset's cached latents come from another GaLR; encoding joints on the fly")
+    shared = dict(
+        action_space=config.action_space,
+        embodiments=list(config.embodiments),
+        hand_refs=_hand_refs(config.embodiments, galr),
+        wrist_dim=len(config.wrist_names),
+        galr_config=dataclasses.asdict(galr.config) if galr is not None else None,
+        link=uuid.uuid4().hex,
+        galr=galr,
+    )
+    encoder = OpfaEncodeJointsStep(
+        **shared,
+        hand=layout.embodiments[0] if layout.kind == "native" else None,
+        native_joint_names=list(layout.joint_names),
+        use_cached_latents=cached,
+    )
+    tables = _policy_space_tables(config, layout, encoder, Path(meta.root))
+    action_tables = {k: v for k, v in tables.items() if k.startswith(ACTION)}
+    return make_policy_processor_pipelines(
+        input_steps=[
+            RenameObservationsProcessorStep(rename_map={}),
+            AddBatchDimensionProcessorStep(),
+            PointCloudBatchStep(),
+            DeviceProcessorStep(device=config.device),
+            encoder,
+            OpfaNormalizeStep(tables=tables),
+            NormalizerProcessorStep(features={}, norm_map=config.normalization_mapping),
+        ],
+        output_steps=[
+            UnnormalizerProcessorStep(features={}, norm_map=config.normalization_mapping),
+            OpfaUnnormalizeStep(keys=[ACTION], tables=action_tables, link=shared["link"]),
+            OpfaDecodeJointsStep(**shared),
+            DeviceProcessorStep(device="cpu"),
+        ],
+    )

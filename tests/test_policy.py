@@ -1,0 +1,336 @@
+"""The `opfa` policy on tiny configs: merged datasets, processors, the three action spaces, save/load,
+Hub round trip, clear errors, and `lerobot-train` / `lerobot-eval` as the user runs them."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+from lerobot.configs.types import FeatureType
+from lerobot.datasets.dataset_metadata import LeRobotDatasetMetadata
+from lerobot.datasets.factory import resolve_delta_timestamps
+from lerobot.datasets.lerobot_dataset import LeRobotDataset
+from lerobot.policies.factory import make_pre_post_processors
+from lerobot.processor.converters import batch_to_transition, transition_to_batch
+from lerobot.utils.constants import OBS_ENV_STATE
+from lerobot.utils.feature_utils import dataset_to_policy_features
+
+from lerobot_opfa import cli
+from lerobot_opfa.datasets import merge as merge_module
+from lerobot_opfa.datasets.latent import latent_dataset
+from lerobot_opfa.datasets.layout import JointNameError, read_layout
+from lerobot_opfa.datasets.merge import merge_datasets
+from lerobot_opfa.datasets.synthetic import write_synthetic_dataset
+from lerobot_opfa.galr.model import Galr, GalrConfig, hand_record
+from lerobot_opfa.hands import load_hand
+from lerobot_opfa.policy.configuration_opfa import OBS_EMBODIMENT, OBS_JOINT_MASK, OBS_POINTCLOUD, OpfaConfig
+from lerobot_opfa.policy.joint_steps import OpfaEncodeJointsStep
+from lerobot_opfa.policy.modeling_opfa import OpfaPolicy
+from lerobot_opfa.policy.processor_opfa import make_opfa_pre_post_processors
+from lerobot_opfa.policy.stock_io import convert_policy_io
+
+HANDS = ["umi", "inspire", "leap"]  # 1, 6 and 16 DoF
+GALR = dict(latent_dim=8, encoder="pointnet", n_points=64, n_level1=32, n_superpoints=24, widths=(16, 32, 32),
+            decoder_hidden=32)  # fmt: skip
+POLICY = dict(device="cpu", down_dims=(16, 32), horizon=8, n_action_steps=4, pointcloud_widths=(16, 32),
+              pointcloud_feature_dim=16, diffusion_step_embed_dim=16, n_groups=4)  # fmt: skip
+ENV = {**os.environ, "HF_HUB_OFFLINE": "1", "HF_DATASETS_OFFLINE": "1", "OMP_NUM_THREADS": "2"}
+
+
+def save_galr(path: Path, hands: list[str]) -> Path:
+    torch.manual_seed(0)
+    Galr(GalrConfig(**GALR, hands=[hand_record(load_hand(h)) for h in hands])).save_pretrained(path)
+    return path
+
+
+@pytest.fixture(scope="session")
+def data(tmp_path_factory) -> Path:
+    """A tiny GaLR, one synthetic dataset per hand and their merge (built once per test session)."""
+    root = tmp_path_factory.mktemp("opfa")
+    save_galr(root / "galr", HANDS)
+    for seed, hand in enumerate(HANDS):
+        write_synthetic_dataset(root / hand, hand, episodes=2, frames=12, n_points=32, seed=seed)
+    inputs = [str(root / h) for h in HANDS]
+    merge = ["dataset", "merge", "--inputs", *inputs, "--output", str(root / "merged"), "--galr"]
+    assert cli.main([*merge, str(root / "galr")]) == 0
+    return root
+
+
+def make_policy(root: Path, dataset: str, **overrides) -> tuple[OpfaPolicy, object, object, LeRobotDataset]:
+    meta = LeRobotDatasetMetadata(f"local/{dataset}", root=root / dataset)
+    config = OpfaConfig(**{**POLICY, "galr_path": str(root / "galr"), **overrides})
+    features = dataset_to_policy_features(meta.features)
+    config.output_features = {k: f for k, f in features.items() if f.type is FeatureType.ACTION}
+    config.input_features = {k: f for k, f in features.items() if k not in config.output_features}
+    torch.manual_seed(0)
+    policy = OpfaPolicy(config, dataset_meta=meta)
+    pre, post = make_opfa_pre_post_processors(config, dataset_meta=meta)
+    dataset = LeRobotDataset(
+        f"local/{dataset}", root=root / dataset, delta_timestamps=resolve_delta_timestamps(config, meta)
+    )
+    return policy, pre, post, dataset
+
+
+def batch_of(dataset: LeRobotDataset, rows: list[int]) -> dict:
+    return torch.utils.data.default_collate([dataset[i] for i in rows])
+
+
+def native_observation(hand: str, cloud: torch.Tensor) -> dict:
+    """What the simulator's observation looks like after LeRobot's `preprocess_observation`."""
+    state = torch.cat([torch.tensor([0.0, 0.0, 0.3, 0.0, 0.0, 0.0]), load_hand(hand).pose("open").float()])
+    env_state = torch.tensor([0.05, -0.02, 0.04])
+    return {
+        "observation.state": state,
+        OBS_POINTCLOUD: cloud,
+        OBS_ENV_STATE: env_state,
+        "task": "lift the object",
+    }
+
+
+def rollout(policy, pre, post, hand: str, cloud: torch.Tensor, steps: int = 5, seed: int = 0) -> torch.Tensor:
+    policy.reset()
+    torch.manual_seed(seed)
+    with torch.no_grad():
+        return torch.cat(
+            [post(policy.select_action(pre(native_observation(hand, cloud)))) for _ in range(steps)]
+        )
+
+
+# --- model parts -----------------------------------------------------------------------------------
+def test_ddim_with_an_exact_denoiser_returns_the_sample():
+    from lerobot_opfa.policy.diffusion import Ddim
+
+    ddim = Ddim(100, 10, "squaredcos_cap_v2", 1e-4, 0.02, "sample", clip=1.0)
+    assert ddim.timesteps == list(range(90, -1, -10))
+    x0 = torch.rand(2, 8, 5) * 2 - 1
+    noisy = ddim.add_noise(x0, torch.randn_like(x0), torch.tensor([99, 99]))
+    assert torch.allclose(ddim.sample(lambda x, t: x0, noisy), x0, atol=1e-5)
+
+
+# --- datasets ----------------------------------------------------------------------------------------
+def test_merge_layout_mask_ids_and_cached_latents(data):
+    merged = LeRobotDataset("local/merged", root=data / "merged")
+    features = merged.meta.features
+    assert features[OBS_EMBODIMENT]["names"] == HANDS
+    assert features[OBS_POINTCLOUD]["shape"] == (96,)
+    layout = read_layout(features, merged.meta.robot_type, data / "merged")
+    assert layout.kind == "merged" and layout.latent_dim == 8 and layout.galr_fingerprint
+    galr = Galr.from_pretrained(data / "galr").eval()
+    frames = merged.hf_dataset.with_format("torch")[:]
+    ids = frames[OBS_EMBODIMENT].flatten()
+    assert ids.tolist() == [0] * 24 + [1] * 24 + [2] * 24
+    for index, hand in enumerate(HANDS):
+        model = load_hand(hand)
+        rows = ids == index
+        mask = frames[OBS_JOINT_MASK][rows][0]
+        assert mask.sum() == model.dof and mask[model.universal_index].all()
+        state = frames["observation.state"][rows]
+        native = LeRobotDataset(f"local/{hand}", root=data / hand).hf_dataset.with_format("torch")[:]
+        assert torch.allclose(state[:, 6 + model.universal_index], native["observation.state"][:, 6:])
+        with torch.no_grad():
+            z = galr.encode_joints(hand, native["action"][:, 6:])
+        assert torch.allclose(frames["action"][rows][:, 6 + 28 :], z, atol=1e-5)
+
+
+def test_interrupted_merge_leaves_nothing(data, monkeypatch, tmp_path):
+    def fail(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(merge_module, "_append", fail)
+    with pytest.raises(KeyboardInterrupt):
+        merge_datasets([data / h for h in HANDS], tmp_path / "out")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_wrong_joint_names_list_missing_and_unknown(tmp_path):
+    names = list(load_hand("inspire").joint_names)
+    names[0] = "thumb_yaw_typo"
+    write_synthetic_dataset(tmp_path / "bad", "inspire", episodes=1, frames=4, n_points=8, joint_names=names)
+    meta = LeRobotDatasetMetadata("local/bad", root=tmp_path / "bad")
+    with pytest.raises(JointNameError, match=r"missing \['thumb_yaw'\].*unknown.*'thumb_yaw_typo'"):
+        read_layout(meta.features, meta.robot_type)
+
+
+def test_hand_missing_from_the_galr_registry(data, tmp_path):
+    save_galr(tmp_path / "galr", ["umi", "inspire"])
+    config = OpfaConfig(**{**POLICY, "galr_path": str(tmp_path / "galr")})
+    meta = LeRobotDatasetMetadata("local/leap", root=data / "leap")
+    config.input_features = dataset_to_policy_features(meta.features)
+    with pytest.raises(ValueError, match=r"'leap'.* not in the GaLR registry"):
+        make_opfa_pre_post_processors(config, dataset_meta=meta)
+
+
+# --- processors and model ------------------------------------------------------------------------------
+def _before_normalization(pre, batch: dict) -> dict:
+    transition = batch_to_transition(batch)
+    for step in pre.steps:
+        transition = step(transition)
+        if isinstance(step, OpfaEncodeJointsStep):
+            break
+    return transition_to_batch(transition)
+
+
+def test_cached_and_online_latents_agree(data):
+    _, pre_merged, _, merged = make_policy(data, "merged")
+    _, pre_native, _, native = make_policy(data, "leap")
+    pipelines = (pre_merged, pre_native)
+    encoders = [next(s for s in p.steps if isinstance(s, OpfaEncodeJointsStep)) for p in pipelines]
+    assert encoders[0].use_cached_latents and not encoders[1].use_cached_latents
+    from_cache = _before_normalization(pre_merged, batch_of(merged, [50, 60]))
+    online = _before_normalization(pre_native, batch_of(native, [2, 12]))
+    assert from_cache[OBS_EMBODIMENT].tolist() == [2, 2] and online[OBS_EMBODIMENT].tolist() == [0, 0]
+    for key in ("observation.state", "action"):
+        assert torch.allclose(from_cache[key], online[key], atol=1e-5)
+
+
+@pytest.mark.parametrize(
+    ("space", "dataset", "width"), [("galr", "merged", 6 + 8), ("raw", "inspire", 6 + 6),
+                                    ("per_embodiment", "merged", 6 + 28)]
+)  # fmt: skip
+def test_each_action_space_trains_and_acts(data, space, dataset, width):
+    policy, pre, post, ds = make_policy(data, dataset, action_space=space)
+    optimizer = torch.optim.Adam(policy.parameters(), lr=1e-3)
+    rows = list(range(0, len(ds), max(1, len(ds) // 8)))[:8]
+    for _ in range(3):
+        batch = pre(batch_of(ds, rows))
+        assert batch["action"].shape == (len(rows), 8, width) and batch["action"].abs().max() <= 1 + 1e-5
+        loss, _ = policy.forward(batch)
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+    assert torch.isfinite(loss)
+    policy.eval()
+    cloud = ds[0][OBS_POINTCLOUD][-1]
+    for hand in policy.config.embodiments:
+        actions = rollout(policy, pre, post, hand, cloud)
+        model = load_hand(hand)
+        assert actions.shape == (5, 6 + model.dof)
+        assert (actions[:, 6:] >= model.lower - 1e-5).all() and (actions[:, 6:] <= model.upper + 1e-5).all()
+
+
+def test_save_load_identical_actions_and_processors_by_name(data, tmp_path):
+    policy, pre, post, ds = make_policy(data, "merged")
+    policy.eval()
+    policy.save_pretrained(tmp_path)
+    pre.save_pretrained(tmp_path)
+    post.save_pretrained(tmp_path)
+    steps = json.loads((tmp_path / "policy_preprocessor.json").read_text())["steps"]
+    names = [s["registry_name"] for s in steps]
+    assert names[-4:] == ["device_processor", "opfa_encode_joints", "opfa_normalize", "normalizer_processor"]
+    loaded = OpfaPolicy.from_pretrained(tmp_path)
+    pre2, post2 = make_pre_post_processors(loaded.config, pretrained_path=str(tmp_path))
+    cloud = ds[0][OBS_POINTCLOUD][-1]
+    for hand in HANDS:
+        assert torch.equal(rollout(policy, pre, post, hand, cloud), rollout(loaded, pre2, post2, hand, cloud))
+
+
+def test_hub_push_and_pull_through_lerobot(data, tmp_path, monkeypatch):
+    """`push_to_hub` with the Hub replaced by a folder: only what LeRobot uploads must suffice."""
+    import huggingface_hub
+
+    hub = tmp_path / "hub"
+
+    def create_repo(self, repo_id, **kwargs):
+        return huggingface_hub.RepoUrl(f"https://huggingface.co/{repo_id}")
+
+    def upload_folder(self, repo_id, folder_path, allow_patterns=None, **kwargs):
+        for file in Path(folder_path).rglob("*"):
+            if file.is_file() and (allow_patterns is None or any(file.match(p) for p in allow_patterns)):
+                target = hub / repo_id / file.relative_to(folder_path)
+                target.parent.mkdir(parents=True, exist_ok=True)
+                shutil.copy(file, target)
+        return f"https://huggingface.co/{repo_id}"
+
+    monkeypatch.setattr(huggingface_hub.HfApi, "create_repo", create_repo)
+    monkeypatch.setattr(huggingface_hub.HfApi, "upload_folder", upload_folder)
+    policy, pre, post, ds = make_policy(data, "merged")
+    policy.eval()
+    for obj in (policy, pre, post):
+        obj.push_to_hub("user/opfa_tiny")
+    shutil.rmtree(data / "galr")  # the pushed policy must not need the GaLR checkpoint any more
+    try:
+        loaded = OpfaPolicy.from_pretrained(hub / "user/opfa_tiny")
+        pre2, post2 = make_pre_post_processors(loaded.config, pretrained_path=str(hub / "user/opfa_tiny"))
+        cloud = ds[0][OBS_POINTCLOUD][-1]
+        assert torch.equal(
+            rollout(policy, pre, post, "leap", cloud), rollout(loaded, pre2, post2, "leap", cloud)
+        )
+    finally:
+        save_galr(data / "galr", HANDS)
+
+
+def test_stock_diffusion_in_galr_space_then_joint_io(data, tmp_path):
+    """Item 7: LeRobot's own diffusion policy trains on a latent dataset, then acts in joint space."""
+    from lerobot.policies.diffusion.configuration_diffusion import DiffusionConfig
+    from lerobot.policies.diffusion.modeling_diffusion import DiffusionPolicy
+    from lerobot.policies.factory import make_policy as make_stock_policy
+
+    latent_dataset(data / "merged", tmp_path / "latent")
+    meta = LeRobotDatasetMetadata("local/latent", root=tmp_path / "latent")
+    assert meta.features["action"]["shape"] == (6 + 8,)
+    config = DiffusionConfig(
+        device="cpu", down_dims=(16, 32), horizon=8, n_action_steps=4, n_groups=4,
+        diffusion_step_embed_dim=16, noise_scheduler_type="DDIM", num_inference_steps=10,
+        pretrained_backbone_weights=None,
+    )  # fmt: skip
+    policy = make_stock_policy(config, ds_meta=meta)
+    pre, post = make_pre_post_processors(config, dataset_stats=meta.stats)
+    dataset = LeRobotDataset(
+        "local/latent", root=tmp_path / "latent", delta_timestamps=resolve_delta_timestamps(config, meta)
+    )
+    loss, _ = policy.forward(pre(batch_of(dataset, [0, 30, 60])))
+    loss.backward()
+    policy.eval()
+    for obj in (policy, pre, post):
+        obj.save_pretrained(tmp_path / "stock")
+    convert_policy_io(tmp_path / "stock", str(data / "galr"), tmp_path / "joint_io")
+    loaded = DiffusionPolicy.from_pretrained(tmp_path / "joint_io")
+    pre2, post2 = make_pre_post_processors(loaded.config, pretrained_path=str(tmp_path / "joint_io"))
+    cloud = dataset[0][OBS_POINTCLOUD][-1]
+    for hand in HANDS:
+        assert rollout(loaded, pre2, post2, hand, cloud, steps=2).shape == (2, 6 + load_hand(hand).dof)
+
+
+# --- the stock CLIs ------------------------------------------------------------------------------------
+def test_lerobot_train_then_eval_every_hand(data, tmp_path, monkeypatch):
+    """`lerobot-train` as a subprocess, then fine-tuning the checkpoint (LeRobot reconfigures its processors
+    by name); `lerobot-eval`'s entry point (in-process, same argv) runs an episode per hand."""
+    from lerobot.scripts import lerobot_eval
+
+    out = tmp_path / "train"
+    command = [
+        str(Path(sys.executable).parent / "lerobot-train"), "--policy.type=opfa",
+        "--dataset.repo_id=local/merged", f"--dataset.root={data / 'merged'}",
+        f"--policy.galr_path={data / 'galr'}", "--policy.device=cpu", "--policy.push_to_hub=false",
+        "--policy.down_dims=[16,32]", "--policy.horizon=8", "--policy.n_action_steps=4",
+        "--policy.pointcloud_widths=[16,32]", "--policy.pointcloud_feature_dim=16", "--policy.n_groups=4",
+        "--steps=3", "--batch_size=4", "--save_freq=3", "--log_freq=1", "--num_workers=0",
+        f"--output_dir={out}", "--wandb.enable=false",
+    ]  # fmt: skip
+    result = subprocess.run(command, env=ENV, capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    checkpoint = out / "checkpoints" / "last" / "pretrained_model"
+    policy = OpfaPolicy.from_pretrained(checkpoint)
+    assert policy.config.embodiments == HANDS and policy.config.latent_dim == 8
+    finetune = [command[0], f"--policy.path={checkpoint}", *command[2:6], "--policy.push_to_hub=false"]
+    finetune += ["--steps=1", "--batch_size=4", "--num_workers=0", f"--output_dir={tmp_path / 'finetune'}"]
+    result = subprocess.run(finetune, env=ENV, capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    monkeypatch.setenv("MUJOCO_GL", "egl")
+    for hand in HANDS:
+        argv = [
+            "lerobot-eval", f"--policy.path={checkpoint}", "--policy.device=cpu", "--env.type=opfa",
+            f"--env.hand={hand}", "--env.task=lift", "--env.n_points=32", "--env.pointcloud_source=geometry",
+            "--env.episode_length=6", "--eval.n_episodes=1", "--eval.batch_size=1",
+            f"--output_dir={tmp_path / f'eval_{hand}'}",
+        ]  # fmt: skip
+        monkeypatch.setattr(sys, "argv", argv)
+        lerobot_eval.main()
+        info = json.loads((tmp_path / f"eval_{hand}" / "eval_info.json").read_text())
+        assert info["overall"]["n_episodes"] == 1
