@@ -8,6 +8,8 @@ import mujoco
 import numpy as np
 import trimesh
 
+from lerobot_opfa.hands.geometry import geom_mesh
+
 # Workspace crop (world frame): above the table top, inside the table's footprint.
 WORKSPACE_LOW = np.array([-0.45, -0.40, 0.004])
 WORKSPACE_HIGH = np.array([0.45, 0.40, 0.60])
@@ -64,29 +66,6 @@ class DepthPointCloud:
         self.renderer.close()
 
 
-def _geom_mesh(model: mujoco.MjModel, geom: int) -> trimesh.Trimesh | None:
-    """The geom's surface in its own frame (None for planes and other unbounded or unsupported types)."""
-    kind, size = model.geom_type[geom], model.geom_size[geom]
-    if kind == mujoco.mjtGeom.mjGEOM_BOX:
-        return trimesh.creation.box(extents=2 * size)
-    if kind == mujoco.mjtGeom.mjGEOM_CAPSULE:
-        return trimesh.creation.capsule(height=2 * size[1], radius=size[0])
-    if kind == mujoco.mjtGeom.mjGEOM_CYLINDER:
-        return trimesh.creation.cylinder(radius=size[0], height=2 * size[1])
-    if kind == mujoco.mjtGeom.mjGEOM_SPHERE:
-        return trimesh.creation.icosphere(subdivisions=2, radius=size[0])
-    if kind == mujoco.mjtGeom.mjGEOM_ELLIPSOID:
-        sphere = trimesh.creation.icosphere(subdivisions=2, radius=1.0)
-        sphere.apply_scale(size)
-        return sphere
-    if kind == mujoco.mjtGeom.mjGEOM_MESH:
-        mesh = model.geom_dataid[geom]
-        vert = model.mesh_vert[model.mesh_vertadr[mesh] : model.mesh_vertadr[mesh] + model.mesh_vertnum[mesh]]
-        face = model.mesh_face[model.mesh_faceadr[mesh] : model.mesh_faceadr[mesh] + model.mesh_facenum[mesh]]
-        return trimesh.Trimesh(vert, face, process=False)
-    return None
-
-
 class GeometryPointCloud:
     """Points drawn once on every collision geom except the table, moved with the geoms each step."""
 
@@ -98,7 +77,7 @@ class GeometryPointCloud:
         for g in range(model.ngeom):
             if g in exclude or not (model.geom_contype[g] or model.geom_conaffinity[g]):
                 continue
-            mesh = _geom_mesh(model, g)
+            mesh = geom_mesh(model, g)
             if mesh is not None:
                 meshes[g] = mesh
         areas = np.array([m.area for m in meshes.values()])

@@ -66,28 +66,36 @@ def mjcf_link_meshes(model: mujoco.MjModel) -> dict[str, trimesh.Trimesh]:
     return meshes
 
 
-def _mjcf_geometry(model: mujoco.MjModel, geom: int) -> trimesh.Trimesh | None:
+def geom_mesh(model: mujoco.MjModel, geom: int) -> trimesh.Trimesh | None:
+    """A MuJoCo geom's surface in the geom's own frame (None for planes and other unbounded types)."""
     kind, size = model.geom_type[geom], model.geom_size[geom]
     g = mujoco.mjtGeom
     if kind == g.mjGEOM_BOX:
-        mesh = trimesh.creation.box(extents=2 * size)
-    elif kind == g.mjGEOM_SPHERE:
-        mesh = trimesh.creation.icosphere(subdivisions=3, radius=size[0])
-    elif kind == g.mjGEOM_CAPSULE:
-        mesh = trimesh.creation.capsule(radius=size[0], height=2 * size[1])
-    elif kind == g.mjGEOM_CYLINDER:
-        mesh = trimesh.creation.cylinder(radius=size[0], height=2 * size[1])
-    elif kind == g.mjGEOM_ELLIPSOID:
+        return trimesh.creation.box(extents=2 * size)
+    if kind == g.mjGEOM_SPHERE:
+        return trimesh.creation.icosphere(subdivisions=3, radius=size[0])
+    if kind == g.mjGEOM_CAPSULE:
+        return trimesh.creation.capsule(radius=size[0], height=2 * size[1])
+    if kind == g.mjGEOM_CYLINDER:
+        return trimesh.creation.cylinder(radius=size[0], height=2 * size[1])
+    if kind == g.mjGEOM_ELLIPSOID:
         mesh = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
         mesh.apply_scale(size)
-    elif kind == g.mjGEOM_MESH:
+        return mesh
+    if kind == g.mjGEOM_MESH:
         mesh_id = model.geom_dataid[geom]
         v0, nv = model.mesh_vertadr[mesh_id], model.mesh_vertnum[mesh_id]
         f0, nf = model.mesh_faceadr[mesh_id], model.mesh_facenum[mesh_id]
-        mesh = trimesh.Trimesh(
+        return trimesh.Trimesh(
             model.mesh_vert[v0 : v0 + nv].copy(), model.mesh_face[f0 : f0 + nf].copy(), process=False
         )
-    else:
+    return None
+
+
+def _mjcf_geometry(model: mujoco.MjModel, geom: int) -> trimesh.Trimesh | None:
+    """The geom's surface in its body's frame."""
+    mesh = geom_mesh(model, geom)
+    if mesh is None:
         return None
     transform = np.eye(4)
     mujoco.mju_quat2Mat(transform[:3, :3].reshape(-1), model.geom_quat[geom])

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import weakref
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import TYPE_CHECKING, Any
 
 import torch
@@ -176,8 +177,7 @@ class OpfaEncodeJointsStep(_HandSpace, ProcessorStep):
                 f"state/action width {x.shape[-1]} != wrist {self.wrist_dim} + {hand.dof} joints"
             )
         if self.embodiments[index] == self.hand and self.native_joint_names:
-            order = [self.native_joint_names.index(j) for j in hand.joint_names]
-            q = q[..., order]
+            q = q[..., self._native_order]
         if self.action_space == "galr":
             z = _encode(self.galr_on(x.device), self.embodiments[index], q)
             return torch.cat([wrist, z], dim=-1)
@@ -203,13 +203,25 @@ class OpfaEncodeJointsStep(_HandSpace, ProcessorStep):
             return torch.cat([wrist, z], dim=-1)
         if self.action_space == "raw":
             return torch.cat([wrist, universal[..., self.model(0).universal_index]], dim=-1)
-        mask = torch.stack([self._mask(i) for i in range(len(self.embodiments))]).to(x.device)
-        row_mask = mask[ids].view(len(ids), *([1] * (x.dim() - 2)), n_universal())
+        row_mask = self._universal_masks.to(x.device)[ids].view(
+            len(ids), *([1] * (x.dim() - 2)), n_universal()
+        )
         return torch.cat([wrist, universal * row_mask], dim=-1)
 
-    def _mask(self, index: int) -> torch.Tensor:
-        mask = torch.zeros(n_universal())
-        mask[self.model(index).universal_index] = 1.0
+    @cached_property
+    def _native_order(self) -> list[int]:
+        """Dataset column of each of `hand`'s spec joints (built once: it runs on every batch)."""
+        return [
+            self.native_joint_names.index(j)
+            for j in self.model(self.embodiments.index(self.hand)).joint_names
+        ]
+
+    @cached_property
+    def _universal_masks(self) -> torch.Tensor:
+        """(embodiments, universal joints): 1 where the embodiment has the joint (built once)."""
+        mask = torch.zeros(len(self.embodiments), n_universal())
+        for index in range(len(self.embodiments)):
+            mask[index, self.model(index).universal_index.cpu()] = 1.0
         return mask
 
     def get_config(self) -> dict[str, Any]:
