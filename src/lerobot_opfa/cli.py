@@ -9,6 +9,7 @@ import sys
 from lerobot_opfa import demo
 from lerobot_opfa.datasets import commands as dataset_commands
 from lerobot_opfa.envs import commands as sim_commands
+from lerobot_opfa.experiments import commands as experiment_commands
 from lerobot_opfa.galr import commands as galr_commands
 from lerobot_opfa.hands import commands as hands_commands
 
@@ -20,6 +21,7 @@ def build_parser() -> argparse.ArgumentParser:
     sim_commands.add_commands(subparsers)
     dataset_commands.add_commands(subparsers)
     galr_commands.add_commands(subparsers)
+    experiment_commands.add_commands(subparsers)
     demo.add_command(subparsers)
     return parser
 
@@ -29,7 +31,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return args.func(args) or 0
-    except (ValueError, FileNotFoundError, KeyError) as err:
+    except (ValueError, FileNotFoundError, KeyError, RuntimeError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
 

@@ -1,7 +1,10 @@
-"""`lerobot-opfa demo` (what `make demo` runs): the pipeline end to end on a small built-in default.
+"""`lerobot-opfa demo` (what `make demo` runs): the whole pipeline on a small built-in default.
 
-So far: every built-in hand, its FK checked against MuJoCo and its open and grasp clouds drawn; then the
-default GaLR checkpoint round-trips held-out states of every hand (joints -> cloud -> z -> joints).
+1. Hands: every built-in hand's FK checked against MuJoCo, its open and grasp clouds drawn, and the default
+   GaLR checkpoint's round trip (joints -> cloud -> z -> joints) on held-out states.
+2. Policy: scripted demos of three embodiments (a gripper and two dexterous hands) on one task, merged into
+   one dataset, one OPFA policy trained on all of them with `lerobot-train`, and every embodiment evaluated
+   with `lerobot-eval`; a success table and a plot at the end.
 """
 
 from __future__ import annotations
@@ -12,6 +15,11 @@ from pathlib import Path
 import torch
 from tqdm import tqdm
 
+from lerobot_opfa.envs.regions import REGIONS
+from lerobot_opfa.experiments.jobs import Demos, Workspace
+from lerobot_opfa.experiments.protocols import co_training
+from lerobot_opfa.experiments.report import markdown_table, plot, summarize
+from lerobot_opfa.experiments.scales import DEMO_SCALE
 from lerobot_opfa.galr.evaluate import evaluate_hand, held_out_joints, plot_reconstructions
 from lerobot_opfa.galr.model import Galr
 from lerobot_opfa.hands.plot import plot_clouds
@@ -23,17 +31,25 @@ from lerobot_opfa.resources import default_galr_checkpoint
 def add_command(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser("demo", help="run the pipeline end to end on a small default")
     parser.add_argument("--output-dir", type=Path, default=Path("outputs/demo"))
-    parser.add_argument("--n-points", type=int, default=1024)
+    parser.add_argument("--n-points", type=int, default=1024, help="points of the hand clouds drawn")
     parser.add_argument(
         "--galr", default=str(default_galr_checkpoint()), help="GaLR checkpoint (dir or repo)"
     )
     parser.add_argument(
         "--states", type=int, default=64, help="held-out states per hand for the GaLR round trip"
     )
+    parser.add_argument("--task", default="press_button")
+    parser.add_argument("--hands", default="umi,inspire,xhand", help="the embodiments co-trained")
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    hands_table(args)
+    policy_table(args)
+    return 0
+
+
+def hands_table(args: argparse.Namespace) -> None:
     galr = Galr.from_pretrained(args.galr).eval()
     rows = []
     for name in tqdm(list(builtin_hands()), desc="hands", unit="hand"):
@@ -57,5 +73,24 @@ def run(args: argparse.Namespace) -> int:
     for name, dof, error, metrics, png in rows:
         rmse, tip = metrics["joint_rmse_deg"], metrics["fingertip_error_mm"]
         print(f"{name:<16}{dof:>4}{error:>18.1e}{rmse:>17.2f}{tip:>16.2f}  {png}")
-    print(f"GaLR {args.galr}: original vs decoded clouds in {reconstructions}")
-    return 0
+    print(f"GaLR {args.galr}: original vs decoded clouds in {reconstructions}\n")
+
+
+def policy_table(args: argparse.Namespace) -> None:
+    """Demos -> merge -> lerobot-train (OPFA) -> lerobot-eval per embodiment, on the whole table."""
+    hands = [h.strip() for h in args.hands.split(",") if h.strip()]
+    everywhere = tuple(REGIONS)
+    demos = [Demos(args.task, h, everywhere, DEMO_SCALE.demos) for h in hands]
+    cells = co_training(args.task, args.task, demos, [everywhere] * len(hands), ("opfa",), seed=0)
+    workspace = Workspace(args.output_dir / "pipeline", DEMO_SCALE, args.galr)
+    rows = []
+    for cell in tqdm(cells, desc="demos -> merge -> lerobot-train -> lerobot-eval", unit="hand"):
+        rows.append({"group": cell.group, **workspace.evaluate(cell.evaluation)})
+    rows = summarize(rows)
+    png = plot(rows, args.output_dir / "success.png", f"OPFA co-trained on {', '.join(hands)}")
+    print(
+        f"One OPFA policy, co-trained on {DEMO_SCALE.demos} scripted demos of each hand "
+        f"({DEMO_SCALE.steps} training steps); {DEMO_SCALE.eval_episodes} evaluation episodes per hand:\n"
+    )
+    print(markdown_table(rows))
+    print(f"plot: {png}; videos: {workspace.root / 'videos'}; policy: {workspace.root / 'train'}")

@@ -5,19 +5,21 @@ Importing this module only registers; the simulator is imported when an env is m
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import gymnasium as gym
 from lerobot.configs import FeatureType, PolicyFeature
 from lerobot.envs.configs import EnvConfig
+from lerobot.processor import ObservationProcessorStep, PolicyProcessorPipeline
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 
 from lerobot_opfa.envs.regions import parse_regions
+from lerobot_opfa.policy.configuration_opfa import OBS_HAND, OBS_POINTCLOUD
 
 # Task name -> episode length in steps at the default 20 Hz (the scripted experts finish well within).
 EPISODE_STEPS = {"lift": 100, "pick_place": 160, "press_button": 80, "pull_drawer": 120}
 WRIST_DOF = 6
 ENV_STATE_DIM = 11  # see `tasks`: object position, object quaternion, target position, articulation
-OBS_POINTCLOUD = "observation.pointcloud"
 ENTRY_POINT = "lerobot_opfa.envs.env:OpfaSimEnv"
 
 
@@ -77,6 +79,16 @@ class OpfaEnvConfig(EnvConfig):
             self.features["environment_state"] = PolicyFeature(type=FeatureType.ENV, shape=(ENV_STATE_DIM,))
             self.features_map["environment_state"] = OBS_ENV_STATE
 
+    def get_env_processors(self) -> tuple[PolicyProcessorPipeline, PolicyProcessorPipeline]:
+        """Tells the policy which hand the observations come from, so a cross-embodiment policy picks the
+        right embodiment even when two of its hands have the same joint count."""
+        from lerobot_opfa.hands.registry import load_spec
+
+        return (
+            PolicyProcessorPipeline(steps=[HandNameStep(load_spec(self.hand).name)]),
+            PolicyProcessorPipeline(steps=[]),
+        )
+
     @property
     def package_name(self) -> str:
         return __name__
@@ -99,3 +111,16 @@ class OpfaEnvConfig(EnvConfig):
             "render_height": self.render_height,
             "max_episode_steps": self.episode_length or EPISODE_STEPS[self.task],
         }
+
+
+@dataclass
+class HandNameStep(ObservationProcessorStep):
+    """Adds `observation.hand` (the hand's name) to every observation of an `opfa` env."""
+
+    hand: str = ""
+
+    def observation(self, observation: dict[str, Any]) -> dict[str, Any]:
+        return {**observation, OBS_HAND: self.hand}
+
+    def transform_features(self, features):
+        return features

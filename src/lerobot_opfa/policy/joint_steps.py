@@ -23,7 +23,7 @@ from lerobot.configs.types import PipelineFeatureType, PolicyFeature
 from lerobot.processor import ObservationProcessorStep, ProcessorStep, ProcessorStepRegistry, TransitionKey
 from lerobot.utils.constants import ACTION, OBS_STATE
 
-from lerobot_opfa.policy.configuration_opfa import OBS_EMBODIMENT, OBS_POINTCLOUD
+from lerobot_opfa.policy.configuration_opfa import OBS_EMBODIMENT, OBS_HAND, OBS_POINTCLOUD
 
 if TYPE_CHECKING:  # the GaLR and hand models import FK and mesh libraries: only when a step is built
     from lerobot_opfa.galr.model import Galr
@@ -137,12 +137,13 @@ class OpfaEncodeJointsStep(_HandSpace, ProcessorStep):
         obs = dict(new[TransitionKey.OBSERVATION])
         state = obs[OBS_STATE].float()
         action = new.get(TransitionKey.ACTION)
+        hand = obs.pop(OBS_HAND, None)
         if OBS_EMBODIMENT in obs:
             emb = obs[OBS_EMBODIMENT]
             ids = emb.reshape(len(emb), -1)[:, -1].long().to(state.device)
             convert = self._from_universal
         else:
-            index = self._native_index(state.shape[-1])
+            index = self._hand_index(hand) if hand is not None else self._native_index(state.shape[-1])
             ids = torch.full((len(state),), index, dtype=torch.long, device=state.device)
             convert = self._from_native
         obs[OBS_STATE] = convert(state, ids)
@@ -155,6 +156,11 @@ class OpfaEncodeJointsStep(_HandSpace, ProcessorStep):
         return new
 
     # --- native layout: wrist + one hand's joints ----------------------------------------------------
+    def _hand_index(self, name: str) -> int:
+        if name not in self.embodiments:
+            raise ValueError(f"this policy was trained on {self.embodiments}; it cannot drive hand '{name}'")
+        return self.embodiments.index(name)
+
     def _native_index(self, width: int) -> int:
         if self.hand is not None:
             return self.embodiments.index(self.hand)

@@ -1,0 +1,124 @@
+"""`lerobot-opfa experiment spatial|fewshot|nine`: run one of the paper's protocols end to end (demos ->
+merge -> `lerobot-train` per condition -> `lerobot-eval` per cell) and write its table and plot.
+
+Re-running the same command resumes: finished demos, trainings and evaluations are found and skipped.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shlex
+import sys
+import time
+from pathlib import Path
+
+from tqdm import tqdm
+
+from lerobot_opfa.experiments import protocols
+from lerobot_opfa.experiments.jobs import CONDITIONS, Workspace
+from lerobot_opfa.experiments.report import summarize, write_report
+from lerobot_opfa.experiments.scales import SCALES, get_scale
+from lerobot_opfa.resources import default_galr_checkpoint
+
+TITLES = {
+    "spatial": "Spatial generalisation: success in regions covered only by the other embodiments' demos",
+    "fewshot": "Few-shot: success of a new embodiment against its number of demos",
+    "nine": "Nine embodiments, one region and eight demos each: success on the whole table",
+}
+
+
+def add_commands(subparsers: argparse._SubParsersAction) -> None:
+    experiment = subparsers.add_parser("experiment", help="the paper's experiments").add_subparsers(
+        dest="experiment", required=True
+    )
+    spatial = experiment.add_parser("spatial", help="w/o vs naive co-training vs OPFA, unseen regions")
+    spatial.add_argument("--tasks", default="press_button,lift")
+    spatial.add_argument("--hands", default="inspire,xhand")
+    spatial.add_argument(
+        "--more-hands", default="umi,inspire,xhand,leap", help="a larger run on the first task ('' skips)"
+    )
+    fewshot = experiment.add_parser("fewshot", help="success against the number of demos of a new hand")
+    fewshot.add_argument("--task", default="lift")
+    fewshot.add_argument("--new-hand", default="inspire")
+    fewshot.add_argument("--other-hand", default="xhand")
+    nine = experiment.add_parser("nine", help="nine embodiments, one region and eight demos each")
+    nine.add_argument("--task", default="lift")
+    nine.add_argument("--hands", default=",".join(protocols.NINE_HANDS))
+    nine.add_argument("--demos-per-hand", type=int, default=8)
+    for parser in (spatial, fewshot, nine):
+        parser.add_argument("--scale", default="small", choices=list(SCALES))
+        parser.add_argument("--output-dir", type=Path, help="work folder (default outputs/experiments/NAME)")
+        parser.add_argument("--report-dir", type=Path, help="where the JSON/MD/PNG go (default: output dir)")
+        parser.add_argument("--galr", default=str(default_galr_checkpoint()), help="GaLR checkpoint")
+        parser.add_argument("--conditions", default=",".join(CONDITIONS))
+        parser.add_argument("--seed", type=int, default=0)
+        parser.set_defaults(func=run)
+
+
+def _names(text: str) -> tuple[str, ...]:
+    return tuple(x.strip() for x in text.split(",") if x.strip())
+
+
+def cells_of(args: argparse.Namespace) -> list[protocols.Cell]:
+    scale, conditions = get_scale(args.scale), _names(args.conditions)
+    if args.experiment == "spatial":
+        return protocols.spatial(
+            scale, _names(args.tasks), _names(args.hands), _names(args.more_hands), conditions, args.seed
+        )
+    if args.experiment == "fewshot":
+        return protocols.fewshot(scale, args.task, args.new_hand, args.other_hand, conditions, args.seed)
+    return protocols.nine(args.task, _names(args.hands), args.demos_per_hand, conditions, args.seed)
+
+
+def run(args: argparse.Namespace) -> int:
+    start = time.monotonic()
+    cells = cells_of(args)
+    name = f"{args.experiment}_{args.scale}"
+    root = args.output_dir or Path("outputs/experiments") / name
+    workspace = Workspace(root, get_scale(args.scale), args.galr)
+    meta = {
+        "experiment": args.experiment,
+        "title": TITLES[args.experiment],
+        "scale": args.scale,
+        "command": "lerobot-opfa " + shlex.join(sys.argv[1:] if sys.argv[0].endswith("lerobot-opfa") else []),
+        "arguments": {k: str(v) for k, v in vars(args).items() if k != "func"},
+        "machine": _machine(),
+    }
+    rows, out_dir, curve = [], args.report_dir or root, args.experiment == "fewshot"
+    for cell in tqdm(cells, desc=f"experiment {args.experiment}", unit="cell"):
+        result = workspace.evaluate(cell.evaluation)
+        rows.append({"group": cell.group, **{k: v for k, v in result.items() if k != "success_rate"}})
+        write_report(summarize(rows), out_dir, name, {**meta, **_durations(root, start)}, curve)
+    report = write_report(summarize(rows), out_dir, name, {**meta, **_durations(root, start, True)}, curve)
+    print(f"\n{TITLES[args.experiment]} ({args.scale} scale)\n")
+    print(report["table_markdown"])
+    print(f"report: {out_dir / name}.{{json,md,png}}")
+    return 0
+
+
+def _durations(root: Path, start: float, final: bool = False) -> dict:
+    """This invocation's wall time and, over resumed runs, the total (kept in the work folder)."""
+    log = root / "runs.json"
+    runs = [*(json.loads(log.read_text()) if log.exists() else []), round(time.monotonic() - start, 1)]
+    if final:
+        log.write_text(json.dumps(runs))
+    return {
+        "wall_seconds_this_run": runs[-1],
+        "wall_seconds_all_runs": round(sum(runs), 1),
+        "runs": len(runs),
+    }
+
+
+def _machine() -> dict:
+    import torch
+
+    return {
+        "cpu_count": os.cpu_count(),
+        "platform": platform.platform(),
+        "python": platform.python_version(),
+        "torch": torch.__version__,
+        "gpu": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None,
+    }

@@ -1,0 +1,207 @@
+"""The steps every experiment is made of, each idempotent: record demos, merge them, train a policy with
+`lerobot-train`, evaluate it with `lerobot-eval`. Every step writes its result under a name derived from
+its inputs and appears whole or not at all, so an interrupted experiment resumes by running again: what is
+finished is found and skipped.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from lerobot_opfa.datasets.io import atomic_directory
+from lerobot_opfa.experiments.scales import Scale
+
+CONDITIONS = {"wo_cotrain": "raw", "naive_cotrain": "per_embodiment", "opfa": "galr"}
+"""The paper's three conditions -> the policy's `action_space`."""
+CONDITION_LABELS = {"wo_cotrain": "w/o co-training", "naive_cotrain": "naive co-training", "opfa": "OPFA"}
+EVAL_SEED = 100_000
+"""Evaluation episodes are seeded from here, far from the demonstrations' seeds (0 and up)."""
+
+
+@dataclass(frozen=True)
+class Demos:
+    task: str
+    hand: str
+    regions: tuple[str, ...]
+    episodes: int
+    seed: int = 0
+
+    @property
+    def name(self) -> str:
+        return f"{self.task}-{self.hand}-{'+'.join(self.regions)}-{self.episodes}ep-s{self.seed}"
+
+
+@dataclass(frozen=True)
+class Training:
+    condition: str
+    demos: tuple[Demos, ...]
+    seed: int = 0
+
+    def __post_init__(self):
+        if self.condition not in CONDITIONS:
+            raise ValueError(f"unknown condition '{self.condition}'; valid: {', '.join(CONDITIONS)}")
+        if self.condition == "wo_cotrain" and len(self.demos) != 1:
+            raise ValueError("w/o co-training trains on one embodiment's demos")
+
+    @property
+    def name(self) -> str:
+        return f"{self.condition}-{_short_hash([d.name for d in self.demos])}-s{self.seed}"
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    training: Training
+    task: str
+    hand: str
+    regions: tuple[str, ...]
+
+    @property
+    def name(self) -> str:
+        return f"{self.training.name}-{self.task}-{self.hand}-{'+'.join(self.regions)}"
+
+
+def _short_hash(parts: list[str]) -> str:
+    import hashlib
+
+    return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:10]
+
+
+class Workspace:
+    """One experiment's folder: demos/, merged/, train/, eval/ and logs/, shared by all its cells."""
+
+    def __init__(self, root: Path, scale: Scale, galr: str):
+        self.root, self.scale, self.galr = Path(root), scale, galr
+        self.env = {**os.environ, "HF_HUB_OFFLINE": os.environ.get("HF_HUB_OFFLINE", "1")}
+        self.env.setdefault("MUJOCO_GL", "egl")
+
+    # --- demonstrations ---------------------------------------------------------------------------
+    def demos(self, spec: Demos) -> Path:
+        out = self.root / "demos" / spec.name
+        if not (out / "meta" / "info.json").exists():
+            from lerobot_opfa.envs.demos import record_demos
+
+            with atomic_directory(out, overwrite=True) as partial:
+                record_demos(
+                    spec.task, spec.hand, spec.episodes, partial, ",".join(spec.regions), spec.seed,
+                    f"local/{spec.name}", self.scale.n_points, "geometry",
+                )  # fmt: skip
+        return out
+
+    def merged(self, specs: tuple[Demos, ...]) -> Path:
+        """All the demos in one dataset with cached latents (used by both co-training conditions)."""
+        out = self.root / "merged" / _short_hash([d.name for d in specs])
+        if not (out / "meta" / "info.json").exists():
+            from lerobot_opfa.datasets.merge import merge_datasets
+
+            merge_datasets(
+                [self.demos(d) for d in specs], out, self.galr, f"local/{out.name}", overwrite=True
+            )
+        return out
+
+    # --- training ---------------------------------------------------------------------------------
+    def checkpoint(self, training: Training) -> Path:
+        """The trained policy's `pretrained_model` folder (trains it first if needed)."""
+        out = self.root / "train" / training.name
+        model = out / "checkpoints" / "last" / "pretrained_model"
+        if model.exists():
+            return model
+        if training.condition == "wo_cotrain":
+            dataset = self.demos(training.demos[0])
+        else:
+            dataset = self.merged(training.demos)
+        with atomic_directory(out, overwrite=True) as partial:
+            args = [
+                "--policy.type=opfa",
+                f"--policy.action_space={CONDITIONS[training.condition]}",
+                "--policy.wrist_normalization=shared",
+                f"--policy.galr_path={self.galr}",
+                f"--dataset.repo_id=local/{dataset.name}",
+                f"--dataset.root={dataset}",
+                f"--output_dir={partial}",
+                f"--seed={training.seed}",
+                "--policy.push_to_hub=false",
+                "--wandb.enable=false",
+                "--num_workers=0",
+                f"--save_freq={self.scale.steps}",
+                f"--log_freq={max(1, self.scale.steps // 20)}",
+                *self.scale.train_args(),
+            ]
+            self._run("lerobot-train", args, self.root / "logs" / f"train-{training.name}.log")
+            (partial / "opfa_training.json").write_text(
+                json.dumps({"condition": training.condition, "demos": [d.name for d in training.demos]})
+            )
+        return model
+
+    # --- evaluation -------------------------------------------------------------------------------
+    def evaluate(self, evaluation: Evaluation) -> dict:
+        """Successes of `scale.eval_episodes` seeded episodes (trains the policy first if needed)."""
+        out = self.root / "eval" / f"{evaluation.name}.json"
+        if out.exists():
+            return json.loads(out.read_text())
+        model = self.checkpoint(evaluation.training)
+        scratch = self.root / "eval" / f".{evaluation.name}"
+        shutil.rmtree(scratch, ignore_errors=True)
+        args = [
+            f"--policy.path={model}",
+            "--policy.device=cpu" if not _cuda() else "--policy.device=cuda",
+            "--env.type=opfa",
+            f"--env.task={evaluation.task}",
+            f"--env.hand={evaluation.hand}",
+            f"--env.regions={','.join(evaluation.regions)}",
+            "--env.obs_type=pointcloud",
+            "--env.pointcloud_source=geometry",
+            f"--env.n_points={self.scale.n_points}",
+            f"--eval.n_episodes={self.scale.eval_episodes}",
+            f"--eval.batch_size={min(self.scale.eval_batch_size, self.scale.eval_episodes)}",
+            f"--seed={EVAL_SEED}",
+            f"--output_dir={scratch}",
+        ]
+        if self.scale.episode_length:
+            args.append(f"--env.episode_length={self.scale.episode_length}")
+        start = time.monotonic()
+        self._run("lerobot-eval", args, self.root / "logs" / f"eval-{evaluation.name}.log")
+        info = json.loads((scratch / "eval_info.json").read_text())
+        successes = [bool(s) for task in info["per_task"] for s in task["metrics"]["successes"]]
+        result = {
+            "condition": evaluation.training.condition,
+            "task": evaluation.task,
+            "hand": evaluation.hand,
+            "regions": list(evaluation.regions),
+            "training": evaluation.training.name,
+            "successes": successes,
+            "success_rate": sum(successes) / len(successes),
+            "eval_seconds": round(time.monotonic() - start, 1),
+        }
+        videos = sorted((scratch / "videos").rglob("*.mp4"))
+        if videos:
+            video = self.root / "videos" / f"{evaluation.name}.mp4"
+            video.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(videos[0], video)
+            result["video"] = str(video.relative_to(self.root))
+        out.write_text(json.dumps(result, indent=2))
+        shutil.rmtree(scratch, ignore_errors=True)
+        return result
+
+    def _run(self, exe: str, args: list[str], log: Path) -> None:
+        log.parent.mkdir(parents=True, exist_ok=True)
+        path = Path(sys.executable).parent / exe
+        with open(log, "w") as f:
+            code = subprocess.run(
+                [str(path), *args], stdout=f, stderr=subprocess.STDOUT, env=self.env
+            ).returncode
+        if code != 0:
+            tail = log.read_text()[-3000:]
+            raise RuntimeError(f"{exe} failed (exit {code}); log {log}:\n{tail}")
+
+
+def _cuda() -> bool:
+    import torch
+
+    return torch.cuda.is_available()

@@ -1,0 +1,116 @@
+"""Success tables and plots of an experiment: rates with Wilson 95% intervals, a Markdown table in the
+layout of the paper's (one block per embodiment, one row per condition, one column per group), and a PNG
+(bars, or curves over the demo count for the few-shot experiment)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+from lerobot_opfa.experiments.jobs import CONDITION_LABELS
+
+Z95 = 1.959964
+
+
+def wilson_interval(successes: int, n: int) -> tuple[float, float]:
+    """95% Wilson score interval of a success rate (sane at 0 and n successes, unlike the normal one)."""
+    if n == 0:
+        return 0.0, 1.0
+    p = successes / n
+    centre = (p + Z95**2 / (2 * n)) / (1 + Z95**2 / n)
+    half = Z95 * math.sqrt(p * (1 - p) / n + Z95**2 / (4 * n**2)) / (1 + Z95**2 / n)
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def summarize(cells: list[dict]) -> list[dict]:
+    """One row per evaluated cell with its rate and interval (cells carry group, condition, hand and
+    the per-episode successes)."""
+    rows = []
+    for cell in cells:
+        wins, n = sum(cell["successes"]), len(cell["successes"])
+        low, high = wilson_interval(wins, n)
+        rows.append({**cell, "episodes": n, "success_rate": wins / n, "ci95": [low, high]})
+    return rows
+
+
+def markdown_table(rows: list[dict]) -> str:
+    groups = list(dict.fromkeys(r["group"] for r in rows))
+    hands = list(dict.fromkeys(r["hand"] for r in rows))
+    conditions = [c for c in CONDITION_LABELS if any(r["condition"] == c for r in rows)]
+    index = {(r["group"], r["hand"], r["condition"]): r for r in rows}
+    lines = [f"| condition | {' | '.join(groups)} |", "|---|" + "---|" * len(groups)]
+    for hand in hands:
+        lines.append(f"| **{hand}** success rate (%) |" + " |" * len(groups))
+        for condition in conditions:
+            cells = []
+            for group in groups:
+                r = index.get((group, hand, condition))
+                if r is None:
+                    cells.append("")
+                else:
+                    low, high = r["ci95"]
+                    cells.append(f"{100 * r['success_rate']:.0f} [{100 * low:.0f}, {100 * high:.0f}]")
+            lines.append(f"| {CONDITION_LABELS[condition]} | {' | '.join(cells)} |")
+    return "\n".join(lines) + "\n"
+
+
+def plot(rows: list[dict], out: Path, title: str, curve: bool = False) -> Path:
+    """Bars per (group, hand) and condition; with `curve`, success against the numeric group instead."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    conditions = [c for c in CONDITION_LABELS if any(r["condition"] == c for r in rows)]
+    fig, ax = plt.subplots(figsize=(max(6.0, 0.9 * len(rows) / max(1, len(conditions)) + 3), 4))
+    if curve:
+        for condition in conditions:
+            mine = sorted((r for r in rows if r["condition"] == condition), key=lambda r: float(r["group"]))
+            x = [float(r["group"]) for r in mine]
+            y = [100 * r["success_rate"] for r in mine]
+            ax.plot(x, y, marker="o", label=CONDITION_LABELS[condition])
+            ax.fill_between(x, *[[100 * r["ci95"][i] for r in mine] for i in (0, 1)], alpha=0.15)
+        ax.set_xscale("log", base=2)
+        ax.set_xlabel("demonstrations of the new embodiment")
+    else:
+        keys = list(dict.fromkeys((r["group"], r["hand"]) for r in rows))
+        index = {(r["group"], r["hand"], r["condition"]): r for r in rows}
+        width = 0.8 / len(conditions)
+        for j, condition in enumerate(conditions):
+            found = [index.get((*k, condition)) for k in keys]
+            x = np.arange(len(keys)) + (j - (len(conditions) - 1) / 2) * width
+            y = np.array([100 * r["success_rate"] if r else np.nan for r in found])
+            err = np.array([_error_bar(r) for r in found]).T
+            ax.bar(x, y, width, yerr=err, capsize=2, label=CONDITION_LABELS[condition])
+        multiple_groups = len({k[0] for k in keys}) > 1
+        ax.set_xticks(range(len(keys)), [f"{h}\n{g}" if multiple_groups else h for g, h in keys], fontsize=8)
+    ax.set_ylabel("success rate (%), 95% Wilson interval")
+    ax.set_ylim(0, 100)
+    ax.set_title(title)
+    ax.legend(fontsize=8)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
+
+
+def _error_bar(row: dict | None) -> list[float]:
+    if row is None:
+        return [0.0, 0.0]
+    rate, (low, high) = row["success_rate"], row["ci95"]
+    return [100 * (rate - low), 100 * (high - rate)]
+
+
+def write_report(rows: list[dict], out_dir: Path, name: str, meta: dict, curve: bool = False) -> dict:
+    """`<name>.json`, `<name>.md` and `<name>.png` in `out_dir`; returns the JSON's content."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    table = markdown_table(rows)
+    report = {**meta, "results": rows, "table_markdown": table}
+    (out_dir / f"{name}.json").write_text(json.dumps(report, indent=2))
+    header = f"# {meta.get('title', name)}\n\nCommand: `{meta.get('command', '')}`\n\n"
+    (out_dir / f"{name}.md").write_text(header + table)
+    plot(rows, out_dir / f"{name}.png", meta.get("title", name), curve)
+    return report

@@ -1,0 +1,98 @@
+"""The experiment runner at toy scale, end to end as a user runs it (scripted demos, merge, real
+`lerobot-train` and `lerobot-eval` subprocesses), resume included; and the protocols' bookkeeping."""
+
+from __future__ import annotations
+
+import json
+import os
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import pytest
+import torch
+
+from lerobot_opfa.cli import main
+from lerobot_opfa.envs.regions import REGIONS
+from lerobot_opfa.experiments import protocols
+from lerobot_opfa.experiments.report import wilson_interval
+from lerobot_opfa.experiments.scales import get_scale
+
+
+@pytest.mark.parametrize("n", [2, 3, 4, 8, 9])
+def test_regions_split_is_disjoint(n):
+    parts = protocols.split_regions(n)
+    flat = [r for part in parts for r in part]
+    assert len(parts) == n and len(flat) == len(set(flat)) and set(flat) <= set(REGIONS)
+    assert len({len(p) for p in parts}) == 1
+
+
+def test_wilson_interval():
+    assert wilson_interval(0, 50) == pytest.approx((0.0, 0.0713), abs=1e-4)
+    assert wilson_interval(25, 50) == pytest.approx((0.3664, 0.6336), abs=1e-4)
+    assert wilson_interval(50, 50)[1] == 1.0
+
+
+def test_protocol_cells():
+    small = get_scale("small")
+    cells = protocols.spatial(small, ("lift", "press_button"), ("inspire", "xhand"), ("umi", "inspire", "leap"))
+    assert len(cells) == 2 * 2 * 3 + 3 * 3
+    for cell in cells:  # every embodiment is tested where only the others' demos are
+        own = next(d for d in cell.evaluation.training.demos if d.hand == cell.evaluation.hand).regions
+        assert not set(own) & set(cell.evaluation.regions)
+    naive = [c for c in cells if c.condition == "naive_cotrain" and c.group == "lift"]
+    assert {len(c.evaluation.training.demos) for c in naive} == {2}
+    few = protocols.fewshot(small, "lift", "inspire", "xhand")
+    assert [c.group for c in few if c.condition == "opfa"] == ["1", "2", "4", "8", "12", "18", "36"]
+    assert all(d.episodes == small.demos for c in few if c.condition == "opfa" for d in c.evaluation.training.demos[1:])
+    assert len(protocols.nine("lift")) == 9 * 3
+    with pytest.raises(ValueError, match="unknown condition"):
+        protocols.nine("lift", conditions=("oracle",))
+
+
+def test_spatial_experiment_toy_end_to_end_and_resume(tmp_path, capsys):
+    work, report = tmp_path / "work", tmp_path / "report"
+    argv = [
+        "experiment", "spatial", "--scale", "toy", "--tasks", "press_button", "--hands", "umi,inspire",
+        "--more-hands", "", "--conditions", "wo_cotrain,opfa", "--output-dir", str(work),
+        "--report-dir", str(report),
+    ]  # fmt: skip
+    assert main(argv) == 0
+    result = json.loads((report / "spatial_toy.json").read_text())
+    rows = result["results"]
+    assert {(r["hand"], r["condition"]) for r in rows} == {
+        (h, c) for h in ("umi", "inspire") for c in ("wo_cotrain", "opfa")
+    }
+    assert all(len(r["successes"]) == 2 and 0 <= r["ci95"][0] <= r["ci95"][1] <= 1 for r in rows)
+    umi = next(r for r in rows if r["hand"] == "umi")
+    assert set(umi["regions"]) == set(protocols.split_regions(2)[1])  # the other hand's regions
+    assert (report / "spatial_toy.png").read_bytes()[:4] == b"\x89PNG"
+    assert "| OPFA |" in (report / "spatial_toy.md").read_text()
+    assert "w/o co-training" in capsys.readouterr().out
+
+    # resume: a lost evaluation is redone, nothing else
+    checkpoints = sorted((work / "train").glob("*/checkpoints/last/pretrained_model/model.safetensors"))
+    assert len(checkpoints) == 3  # one w/o co-training policy per hand, one OPFA policy
+    stamps = [c.stat().st_mtime_ns for c in checkpoints]
+    lost = sorted((work / "eval").glob("*.json"))[0]
+    lost.unlink()
+    assert main(argv) == 0
+    assert lost.exists()
+    assert [c.stat().st_mtime_ns for c in checkpoints] == stamps
+    assert json.loads((report / "spatial_toy.json").read_text())["runs"] == 2
+
+    # the env names its hand, so the policy refuses a hand it was not trained on
+    from lerobot.policies.factory import make_pre_post_processors
+
+    from lerobot_opfa.policy.configuration_opfa import OBS_HAND, OBS_POINTCLOUD
+    from lerobot_opfa.policy.modeling_opfa import OpfaPolicy
+
+    opfa = next(c.parent for c in checkpoints if c.parts[-5].startswith("opfa"))
+    policy = OpfaPolicy.from_pretrained(opfa)
+    pre, _ = make_pre_post_processors(policy.config, pretrained_path=str(opfa))
+    observation = {
+        "observation.state": torch.zeros(1, 6 + 12),
+        OBS_POINTCLOUD: torch.zeros(1, 3 * 64),
+        OBS_HAND: "xhand",
+    }
+    with pytest.raises(ValueError, match="cannot drive hand 'xhand'"):
+        pre(observation)
