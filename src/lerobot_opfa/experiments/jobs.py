@@ -128,7 +128,7 @@ class Workspace:
                 f"--seed={training.seed}",
                 "--policy.push_to_hub=false",
                 "--wandb.enable=false",
-                "--num_workers=0",
+                "--num_workers=1",
                 f"--save_freq={self.scale.steps}",
                 f"--log_freq={max(1, self.scale.steps // 20)}",
                 *self.scale.train_args(),
@@ -160,6 +160,7 @@ class Workspace:
             f"--env.n_points={self.scale.n_points}",
             f"--eval.n_episodes={self.scale.eval_episodes}",
             f"--eval.batch_size={min(self.scale.eval_batch_size, self.scale.eval_episodes)}",
+            "--eval.use_async_envs=false",
             f"--seed={EVAL_SEED}",
             f"--output_dir={scratch}",
         ]
