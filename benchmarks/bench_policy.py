@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import statistics
 import tempfile
@@ -126,13 +127,13 @@ def opfa_breakdown_ms(policy, pre, post, obs: dict, repeats: int) -> dict[str, f
              for k, v in batch.items() if isinstance(v, torch.Tensor)}  # fmt: skip
     parts = {"point_encoder": [], "unet_loop": [], "galr_decode": []}
     decode = next(step for step in post.steps if isinstance(step, OpfaDecodeJointsStep))
-    with torch.no_grad():
+    with torch.inference_mode():
         for _ in range(repeats + 2):
             start = time.perf_counter()
             cond = policy.encode_observation(batch)
             mid = time.perf_counter()
             noise = torch.randn(1, policy.config.horizon, policy.unet.action_dim)
-            actions = policy.ddim.sample(lambda x, t, c=cond: policy.unet(x, t, c, None), noise)
+            actions = policy.sample(cond, None, noise)
             end = time.perf_counter()
             z = actions[:, 0, decode.wrist_dim :]
             start_decode = time.perf_counter()
@@ -151,6 +152,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=20, help="timed select_action chunks")
     parser.add_argument("--n-points", type=int, default=512)
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--note", help="stored in the JSON, e.g. what else ran on the machine")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     from lerobot.policies.diffusion.configuration_diffusion import DiffusionConfig
@@ -220,7 +222,10 @@ def main() -> None:
             "cpu": platform.processor() or platform.machine(),
             "python": platform.python_version(),
             "torch": torch.__version__,
+            "cpu_count": os.cpu_count(),
+            "load_average_1_5_15_min": os.getloadavg(),  # other processes compete for the cores
         },
+        "note": args.note,
         "variants": rows,
         "opfa_select_action_breakdown_ms": breakdown,
         "galr_step_time_vs_raw": raw["train_steps_per_s"] / opfa["train_steps_per_s"],

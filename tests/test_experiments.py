@@ -34,7 +34,9 @@ def test_wilson_interval():
 
 def test_protocol_cells():
     small = get_scale("small")
-    cells = protocols.spatial(small, ("lift", "press_button"), ("inspire", "xhand"), ("umi", "inspire", "leap"))
+    cells = protocols.spatial(
+        small, ("lift", "press_button"), ("inspire", "xhand"), ("umi", "inspire", "leap")
+    )
     assert len(cells) == 2 * 2 * 3 + 3 * 3
     for cell in cells:  # every embodiment is tested where only the others' demos are
         own = next(d for d in cell.evaluation.training.demos if d.hand == cell.evaluation.hand).regions
@@ -43,7 +45,12 @@ def test_protocol_cells():
     assert {len(c.evaluation.training.demos) for c in naive} == {2}
     few = protocols.fewshot(small, "lift", "inspire", "xhand")
     assert [c.group for c in few if c.condition == "opfa"] == ["1", "2", "4", "8", "12", "18", "36"]
-    assert all(d.episodes == small.demos for c in few if c.condition == "opfa" for d in c.evaluation.training.demos[1:])
+    assert all(
+        d.episodes == small.demos
+        for c in few
+        if c.condition == "opfa"
+        for d in c.evaluation.training.demos[1:]
+    )
     assert len(protocols.nine("lift")) == 9 * 3
     with pytest.raises(ValueError, match="unknown condition"):
         protocols.nine("lift", conditions=("oracle",))

@@ -12,7 +12,8 @@ from pathlib import Path
 
 import pytest
 import torch
-from lerobot.configs.types import FeatureType
+import torch.nn.functional as F  # noqa: N812
+from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot.datasets.dataset_metadata import LeRobotDatasetMetadata
 from lerobot.datasets.factory import resolve_delta_timestamps
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
@@ -31,7 +32,7 @@ from lerobot_opfa.galr.model import Galr, GalrConfig, hand_record
 from lerobot_opfa.hands import load_hand
 from lerobot_opfa.policy.configuration_opfa import OBS_EMBODIMENT, OBS_JOINT_MASK, OBS_POINTCLOUD, OpfaConfig
 from lerobot_opfa.policy.joint_steps import OpfaEncodeJointsStep
-from lerobot_opfa.policy.modeling_opfa import OpfaPolicy
+from lerobot_opfa.policy.modeling_opfa import OpfaPolicy, policy_width
 from lerobot_opfa.policy.processor_opfa import make_opfa_pre_post_processors
 from lerobot_opfa.policy.stock_io import convert_policy_io
 
@@ -111,6 +112,64 @@ def test_ddim_with_an_exact_denoiser_returns_the_sample():
     x0 = torch.rand(2, 8, 5) * 2 - 1
     noisy = ddim.add_noise(x0, torch.randn_like(x0), torch.tensor([99, 99]))
     assert torch.allclose(ddim.sample(lambda x, t: x0, noisy), x0, atol=1e-5)
+
+
+def _reference_conv_block(block, x):
+    return F.mish(block[1](block[0](x)))
+
+
+def _reference_film_block(block, x, cond):
+    h = _reference_conv_block(block.first, x)
+    film = block.film(cond).unsqueeze(-1)
+    h = h * film[:, : block.c_out] + film[:, block.c_out :] if block.use_scale else h + film
+    return _reference_conv_block(block.second, h) + block.skip(x)
+
+
+def reference_unet(unet, x, t, cond, head):
+    """The U-Net written plainly on channel-first (B, C, T) features with the modules' own conv layers."""
+    cond = torch.cat([unet.step_embedding(t), cond], dim=-1)
+    h, skips = x.transpose(1, 2), []
+    for first, second, down in unet.down:
+        h = _reference_film_block(second, _reference_film_block(first, h, cond), cond)
+        skips.append(h)
+        h = down(h)
+    for block in unet.mid:
+        h = _reference_film_block(block, h, cond)
+    for first, second, up in unet.up:
+        h = torch.cat([h, skips.pop()], dim=1)
+        h = up(_reference_film_block(second, _reference_film_block(first, h, cond), cond))
+    out = unet.heads(_reference_conv_block(unet.final, h)).view(len(x), unet.n_heads, unet.action_dim, -1)
+    return out[torch.arange(len(x)), head].transpose(1, 2)
+
+
+def test_fast_unet_and_sampler_match_the_plain_reference():
+    from lerobot_opfa.policy.diffusion import ConditionalUnet1d, Ddim
+
+    torch.manual_seed(0)
+    unet = ConditionalUnet1d(5, 7, (16, 32), kernel=5, groups=4, step_embed_dim=16, use_scale=True, n_heads=2)
+    for p in unet.parameters():
+        torch.nn.init.normal_(p, std=0.2)
+    ddim = Ddim(100, 10, "squaredcos_cap_v2", 1e-4, 0.02, "sample", clip=1.0)
+    x, cond, head = torch.randn(3, 8, 5), torch.randn(3, 7), torch.tensor([0, 1, 1])
+    t = torch.tensor([0, 42, 99])
+    assert torch.allclose(unet(x, t, cond, head), reference_unet(unet, x, t, cond, head), atol=1e-5)
+    with torch.no_grad():
+        expected, steps = x, ddim.timesteps
+        for i, step in enumerate(steps):
+            a, a_prev = ddim.alpha_bar[step], ddim.alpha_bar[steps[i + 1]] if i + 1 < len(steps) else 1.0
+            x0 = reference_unet(unet, expected, torch.full((3,), step), cond, head).clamp(-1, 1)
+            eps = (expected - a.sqrt() * x0) / (1 - a).sqrt()
+            expected = a_prev**0.5 * x0 + (1 - a_prev) ** 0.5 * eps
+        actions = ddim.sample(unet.denoiser(steps, cond, head), x)
+    assert torch.allclose(actions, expected, atol=1e-5)
+
+
+def test_raw_policy_width_comes_from_the_dataset_features():
+    """No hand loaded by name: a user hand is known to `load_hand` by its spec path only."""
+    config = OpfaConfig(**POLICY, action_space="raw", embodiments=["user_hand"], wrist_names=list("xyzabc"))
+    config.input_features = {"observation.state": PolicyFeature(type=FeatureType.STATE, shape=(17,))}
+    config.output_features = {"action": PolicyFeature(type=FeatureType.ACTION, shape=(17,))}
+    assert policy_width(config) == 17
 
 
 # --- datasets ----------------------------------------------------------------------------------------

@@ -24,10 +24,13 @@ from lerobot_opfa.policy.diffusion import ConditionalUnet1d, Ddim
 
 
 def policy_width(config: OpfaConfig) -> int:
-    """Width of the policy's state and action vectors: wrist + z | the hand's joints | universal joints."""
+    """Width of the policy's state and action vectors: wrist + z | the hand's joints | universal joints.
+    Read from the config, so a user hand (known to `load_hand` by its spec path, not its name) works."""
     if config.action_space == "galr":
         rest = config.latent_dim
-    elif config.action_space == "raw":
+    elif config.action_space == "raw" and OBS_EMBODIMENT not in config.input_features:
+        rest = config.output_features[ACTION].shape[0] - len(config.wrist_names)  # the hand's own dataset
+    elif config.action_space == "raw":  # a merged dataset (universal layout) of one built-in hand
         rest = load_hand(config.embodiments[0]).dof
     else:
         rest = len(UNIVERSAL_JOINT_NAMES)
@@ -123,7 +126,7 @@ class OpfaPolicy(PreTrainedPolicy):
         return loss, {}
 
     # --- inference ---------------------------------------------------------------------------------
-    @torch.no_grad()
+    @torch.inference_mode()
     def predict_action_chunk(self, batch: dict[str, Tensor], noise: Tensor | None = None) -> Tensor:
         """(B, n_action_steps, A) normalised policy-space actions from the current observation history
         (the queues, filled by `select_action`) or from a batch that already has the time axis."""
@@ -137,11 +140,15 @@ class OpfaPolicy(PreTrainedPolicy):
         shape = (b, self.config.horizon, self.unet.action_dim)
         if noise is None:
             noise = torch.randn(shape, device=cond.device, dtype=cond.dtype)
-        actions = self.ddim.sample(lambda x, t: self.unet(x, t, cond, head), noise)
+        actions = self.sample(cond, head, noise)
         start = self.config.n_obs_steps - 1
         return actions[:, start : start + self.config.n_action_steps]
 
-    @torch.no_grad()
+    def sample(self, cond: Tensor, head: Tensor | None, noise: Tensor) -> Tensor:
+        """The DDIM reverse process from `noise` (B, horizon, A) for global conditions cond (B, C)."""
+        return self.ddim.sample(self.unet.denoiser(self.ddim.timesteps, cond, head), noise)
+
+    @torch.inference_mode()
     def select_action(self, batch: dict[str, Tensor], noise: Tensor | None = None) -> Tensor:
         """One action per call; a new chunk is sampled every `n_action_steps` calls (as in LeRobot's
         diffusion policy: observations n-o+1..n condition actions n..n+a-1)."""
