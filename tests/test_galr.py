@@ -112,9 +112,13 @@ def test_unknown_or_changed_hand_is_a_clear_error(tmp_path):
     changed = tmp_path / "umi"
     shutil.copytree(hand_models_dir() / "umi", changed)
     spec = (changed / "spec.yaml").read_text().replace("left_jaw_joint: 0.044}", "left_jaw_joint: 0.04}")
-    (changed / "spec.yaml").write_text(spec)
+    (changed / "spec.yaml").write_text(spec)  # an expert pose: the GaLR does not depend on it
+    galr.encode_joints(HandModel.from_spec(changed / "spec.yaml"), _joints("umi", 1))
+    coupled = tmp_path / "umi_coupled"
+    shutil.copytree(changed, coupled)
+    (coupled / "spec.yaml").write_text(spec.replace("scale: 1.0", "scale: 0.9"))  # a coupling: it does
     with pytest.raises(ValueError, match="hand 'umi' changed since this GaLR checkpoint was trained"):
-        galr.encode_joints(HandModel.from_spec(changed / "spec.yaml"), _joints("umi", 1))
+        galr.encode_joints(HandModel.from_spec(coupled / "spec.yaml"), _joints("umi", 1))
 
 
 def _pretrain_config(output_dir: Path, steps: int, resume: bool = False) -> PretrainConfig:

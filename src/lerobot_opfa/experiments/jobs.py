@@ -35,7 +35,7 @@ class Demos:
 
     @property
     def name(self) -> str:
-        return f"{self.task}-{self.hand}-{'+'.join(self.regions)}-{self.episodes}ep-s{self.seed}"
+        return f"{self.task}-{self.hand}-{regions_tag(self.regions)}-{self.episodes}ep-s{self.seed}"
 
 
 @dataclass(frozen=True)
@@ -64,7 +64,14 @@ class Evaluation:
 
     @property
     def name(self) -> str:
-        return f"{self.training.name}-{self.task}-{self.hand}-{'+'.join(self.regions)}"
+        return f"{self.training.name}-{self.task}-{self.hand}-{regions_tag(self.regions)}"
+
+
+def regions_tag(regions: tuple[str, ...]) -> str:
+    """Regions as part of a file name: 'all' for the whole table."""
+    from lerobot_opfa.envs.regions import REGIONS
+
+    return "all" if set(regions) == set(REGIONS) else "+".join(regions)
 
 
 def _short_hash(parts: list[str]) -> str:

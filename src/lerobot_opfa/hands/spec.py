@@ -7,6 +7,7 @@ links when a `HandModel` is built (`HandSpec.check_against`). Every error names 
 from __future__ import annotations
 
 import hashlib
+import json
 import re
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -65,8 +66,11 @@ class HandSpec:
 
     @cached_property
     def sha256(self) -> str:
-        """Hash of the spec and its model file: a checkpoint trained on a hand records it."""
-        digest = hashlib.sha256(self.path.read_bytes())
+        """Hash of what a GaLR checkpoint trained on this hand depends on: the model file and the spec's
+        content except its expert poses and description (retuning a grasp pose keeps checkpoints valid)."""
+        raw = yaml.safe_load(self.path.read_text())
+        relevant = {k: v for k, v in raw.items() if k not in ("poses", "description")}
+        digest = hashlib.sha256(json.dumps(relevant, sort_keys=True).encode())
         digest.update(self.model_path.read_bytes())
         return digest.hexdigest()
 
