@@ -99,7 +99,7 @@ def main() -> None:
     parser.add_argument("--hands", default="all")
     parser.add_argument("--tasks", default="all")
     parser.add_argument("--episodes", type=int, default=50)
-    parser.add_argument("--speed-steps", type=int, default=300)
+    parser.add_argument("--speed-steps", type=int, default=1000)
     parser.add_argument("--speed-task", default="lift")
     parser.add_argument("--n-points", type=int, default=1024)
     parser.add_argument(
@@ -122,7 +122,7 @@ def main() -> None:
             "n_points": args.n_points,
             "control_hz": 20,
             "physics_dt_s": 0.002,
-            "depth_cameras": "front only, 160x120, MUJOCO_GL=" + os.environ.get("MUJOCO_GL", ""),
+            "depth_cameras": "front only, 128x96, MUJOCO_GL=" + os.environ.get("MUJOCO_GL", ""),
             "success_obs_type": "state (success does not depend on the observation)",
         },
         "machine": {

@@ -13,7 +13,7 @@ from conftest import BUILTIN_HANDS
 
 from lerobot_opfa.envs.config import EPISODE_STEPS, OpfaEnvConfig
 from lerobot_opfa.envs.env import OpfaSimEnv
-from lerobot_opfa.envs.experts import ScriptedExpert
+from lerobot_opfa.envs.experts import SQUEEZE, ScriptedExpert
 from lerobot_opfa.envs.observation import WORKSPACE_HIGH, WORKSPACE_LOW
 from lerobot_opfa.envs.regions import REGIONS, parse_regions
 from lerobot_opfa.envs.tasks import TASKS
@@ -70,7 +70,7 @@ def test_pick_place_needs_release():
     env = OpfaSimEnv("pick_place", "umi", obs_type="state")
     env.reset(seed=3)
     expert = ScriptedExpert(env, np.random.default_rng(3))
-    expert.plan[-3].hand = expert.plan[-2].hand = expert.plan[-1].hand = expert.closed  # never open
+    expert.plan[-3].closure = expert.plan[-2].closure = expert.plan[-1].closure = SQUEEZE  # never open
     while not expert.done:
         _, _, terminated, _, _ = env.step(expert.act())
         assert not terminated

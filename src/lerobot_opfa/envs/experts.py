@@ -1,8 +1,11 @@
-"""Scripted experts: wrist waypoints in the hand's tool frame plus the spec's open and grasp poses.
+"""Scripted experts: wrist waypoints in the hand's tool frame plus closures between the spec's open and
+grasp poses.
 
 Because the wrist is driven in the tool frame (see `toolframe`), the same waypoints serve every hand;
-per hand only the tool frame's reach enters (how far the hand sticks out past its grasp centre). Every
-episode draws its own waypoint offsets, yaw, timing and per-step action noise, so demonstrations vary."""
+per hand its geometry enters: how far it reaches past its grasp centre as it closes (the wrist never
+drives it into the table) and the direction along which its thumb closes on the fingers (an elongated
+object lies across it). Every episode draws its own waypoint offsets, yaw, timing and per-step action
+noise, so demonstrations vary."""
 
 from __future__ import annotations
 
@@ -16,12 +19,22 @@ from lerobot_opfa.envs.tasks import Lift, PickPlace, PressButton, PullDrawer
 
 # Hands close this far past the spec's grasp pose (clipped to the limits), so the servos keep squeezing an
 # object that stops the fingers short of the pose; grippers close to their limit (their grasp poses are
-# set for larger objects than these tasks').
-SQUEEZE = 1.4
+# set for larger objects than these tasks'). Squeezing harder (1.4) pops small objects out of some hands.
+SQUEEZE = 1.3
+CLOSE_STEPS = 18  # closing takes about 0.9 s: fingers that strike the object push it away before it is held
+RELEASE = 0.5  # closure the hand relaxes to before it withdraws: opening wide at once flings the object
 POSITION_NOISE = 0.004  # m, per waypoint
 ACTION_NOISE = 0.001  # m, per step on the wrist position
-CLEARANCE = 0.004  # m, between the hand and the table when reaching down
+CLEARANCE = 0.004  # m, between the hand and the table
 LIFT = 0.12  # m, approach from and retreat to this far above a grasp
+SINK = 0.03  # m, the hand sinks this much while closing (as far as the closing hand clears the table)
+CAN_GRASP_DEPTH = 0.035  # m, the grasp centre reaches this far below the can's top
+DROP = 0.01  # m, a carried object is let go this far above where it comes to rest
+
+# Per hand, m: grasp the banana this far along its axis from the middle (towards where the fingertips
+# gather). Measured: the Shadow hand, grasping the middle, holds the banana by one end, tilted, and it
+# topples off the plate when let go (90% success over 50 episodes; 100% with this offset).
+ALONG_BANANA = {"shadow": 0.015}
 
 # (task, hand) pairs left out of the benchmark's targets, with the reason (measured by bench_sim.py).
 EXCLUDED_PAIRS: dict[tuple[str, str], str] = {}
@@ -29,11 +42,12 @@ EXCLUDED_PAIRS: dict[tuple[str, str], str] = {}
 
 @dataclass
 class Waypoint:
-    """Reach the tool pose `pose` (x, y, z, yaw) and the hand joints `hand` over `steps` steps."""
+    """Reach the tool pose `pose` (x, y, z, yaw) and the hand closure `closure` over `steps` steps."""
 
     pose: np.ndarray
-    hand: np.ndarray
+    closure: float  # 0 the spec's open pose, 1 its grasp pose, SQUEEZE closed
     steps: int
+    carry: bool = False  # `pose` is where the held object goes: the tool keeps its offset from the object
 
 
 class ScriptedExpert:
@@ -44,18 +58,27 @@ class ScriptedExpert:
         hand = env.hand_model
         self.open = env.hand_open
         self.grasp = hand.pose("grasp").double().cpu().numpy()
-        lower, upper = hand.lower.double().cpu().numpy(), hand.upper.double().cpu().numpy()
+        self.lower, self.upper = hand.lower.double().cpu().numpy(), hand.upper.double().cpu().numpy()
         if hand.spec.kind == "gripper":
             self.closed = np.where(
-                self.grasp > self.open, upper, np.where(self.grasp < self.open, lower, self.grasp)
+                self.grasp > self.open, self.upper, np.where(self.grasp < self.open, self.lower, self.grasp)
             )
         else:
-            self.closed = np.clip(self.open + SQUEEZE * (self.grasp - self.open), lower, upper)
+            self.closed = np.clip(self.open + SQUEEZE * (self.grasp - self.open), self.lower, self.upper)
         self.tool = env.scene.tool
-        self.start = Waypoint(np.array([*HOME[:3], HOME[3]]), self.open, 1)
+        self.start = Waypoint(np.array([*HOME[:3], HOME[3]]), 0.0, 1)
         self.plan = self._plan()
         self.schedule = np.cumsum([w.steps for w in self.plan])
         self.t = 0
+        self.held: np.ndarray | None = None  # tool minus object position, measured when carrying starts
+
+    def hand_pose(self, closure: float) -> np.ndarray:
+        """Joint targets: linear from the open (0) to the grasp pose (1), then on to the closed pose."""
+        if closure <= 1.0:
+            q = self.open + closure * (self.grasp - self.open)
+        else:
+            q = self.grasp + (closure - 1.0) / (SQUEEZE - 1.0) * (self.closed - self.grasp)
+        return np.clip(q, self.lower, self.upper)
 
     def _jitter(self, xyz: np.ndarray) -> np.ndarray:
         return xyz + self.rng.normal(0.0, POSITION_NOISE, 3)
@@ -63,48 +86,46 @@ class ScriptedExpert:
     def _steps(self, n: int) -> int:
         return max(2, int(round(n * self.rng.uniform(0.85, 1.15))))
 
-    def _grasp_height(self, height: float, closure: float = 0.0) -> float:
-        """The tool's height for grasping at `height`, high enough that the hand, `closure` of the way from
-        open to grasp, clears the table."""
-        return max(height, self.tool.reach_at(closure) + CLEARANCE)
-
-    @staticmethod
-    def _axis_yaw(angle: float) -> float:
-        """Wrist yaw pointing the tool's x axis along a horizontal axis at `angle`, in [-pi/2, pi/2)."""
-        return (angle + np.pi / 2) % np.pi - np.pi / 2
-
     def _grasp_plan(self, xy: np.ndarray, height: float, yaw: float) -> tuple[list[Waypoint], np.ndarray]:
-        """Approach from above, reach down open, close while sinking as far as the closing hand allows (its
-        fingers slide on the table), then lift. Returns the waypoints and the grasp position."""
-        reach = self._jitter(np.array([*xy, self._grasp_height(height)]))
-        grasp = np.array([*reach[:2], max(reach[2] - 0.03, self._grasp_height(height, 1.0))])
+        """Approach from above, reach down open (no lower than the open hand clears the table), close
+        slowly while sinking (as far as the closing hand clears the table, see `act`). Returns the
+        waypoints and the grasp position."""
+        reach = self._jitter(np.array([*xy, height]))
+        reach[2] = max(reach[2], self.tool.reach_at(0.0) + CLEARANCE)
+        grasp = reach - [0.0, 0.0, SINK]
         up = np.array([0.0, 0.0, LIFT])
         return [
-            Waypoint(np.array([*(reach + up), yaw]), self.open, self._steps(22)),
-            Waypoint(np.array([*reach, yaw]), self.open, self._steps(16)),
-            Waypoint(np.array([*grasp, yaw]), self.closed, self._steps(12)),
-            Waypoint(np.array([*grasp, yaw]), self.closed, 4),
+            Waypoint(np.array([*(reach + up), yaw]), 0.0, self._steps(22)),
+            Waypoint(np.array([*reach, yaw]), 0.0, self._steps(16)),
+            Waypoint(np.array([*grasp, yaw]), SQUEEZE, self._steps(CLOSE_STEPS)),
+            Waypoint(np.array([*grasp, yaw]), SQUEEZE, 4),
         ], grasp
 
     def _plan(self) -> list[Waypoint]:
         task, place = self.env.task, self.env.placement
         if isinstance(task, Lift):  # near the top of the upright can, from any side
-            plan, grasp = self._grasp_plan(
-                place.xy, 2 * task.half_height - 0.035, self.rng.uniform(-0.5, 0.5)
+            yaw = self.rng.uniform(-0.5, 0.5)
+            plan, grasp = self._grasp_plan(place.xy, 2 * task.half_height - CAN_GRASP_DEPTH, yaw)
+            plan.append(Waypoint(np.array([*(grasp + [0, 0, 0.15]), yaw]), SQUEEZE, self._steps(20)))
+        elif isinstance(task, PickPlace):
+            # The banana lies across the thumb's squeeze direction, its inner curve (local +y) towards the
+            # thumb, so its ends bend round the thumb instead of into the fingers. Seen from above the
+            # tool frame is mirrored (`tool_to_world`): the squeeze points along world yaw - squeeze_angle.
+            squeeze = self.tool.squeeze_angle
+            yaw = place.yaw + np.pi / 2 + squeeze + self.rng.normal(0.0, 0.05)
+            yaw = (yaw + np.pi) % (2 * np.pi) - np.pi
+            along = ALONG_BANANA.get(self.env.hand_model.name, 0.0) * np.array(
+                [-np.sin(squeeze), np.cos(squeeze), 0]
             )
-            yaw = plan[0].pose[3]
-            plan.append(Waypoint(np.array([*(grasp + [0, 0, 0.15]), yaw]), self.closed, self._steps(20)))
-        elif isinstance(task, PickPlace):  # the banana lies along the tool's y axis, squeezed across
-            yaw = self._axis_yaw(place.yaw + np.pi / 2 + self.rng.normal(0.0, 0.05))
-            plan, grasp = self._grasp_plan(place.xy, task.radius, yaw)
-            drop = self._jitter(np.array([*place.target_xy, grasp[2] + 0.03]))
+            plan, grasp = self._grasp_plan(place.xy - tool_to_world(along, yaw)[:2], task.radius, yaw)
+            drop = self._jitter(np.array([*place.target_xy, 2 * task.plate_half + task.radius + DROP]))
             up = np.array([0.0, 0.0, LIFT])
             plan += [
-                Waypoint(np.array([*(grasp + up), yaw]), self.closed, self._steps(18)),
-                Waypoint(np.array([*(drop + up), yaw]), self.closed, self._steps(25)),
-                Waypoint(np.array([*drop, yaw]), self.closed, self._steps(14)),
-                Waypoint(np.array([*drop, yaw]), self.open, self._steps(10)),
-                Waypoint(np.array([*(drop + up), yaw]), self.open, self._steps(14)),
+                Waypoint(np.array([*(grasp + up), yaw]), SQUEEZE, self._steps(18)),
+                Waypoint(np.array([*(drop + up), yaw]), SQUEEZE, self._steps(25), carry=True),
+                Waypoint(np.array([*drop, yaw]), SQUEEZE, self._steps(14), carry=True),
+                Waypoint(np.array([*drop, yaw]), RELEASE, self._steps(10), carry=True),
+                Waypoint(np.array([*(drop + up), yaw]), 0.0, self._steps(14), carry=True),
             ]
         elif isinstance(task, PressButton):  # the grasp pose's foremost point onto the cap, pushed in
             yaw = self.rng.uniform(-0.5, 0.5)
@@ -114,29 +135,42 @@ class ScriptedExpert:
                 np.array([*(place.xy - tool_to_world(tip, yaw)[:2]), task.cap_top - depth + tip[2]])
             )
             plan = [
-                Waypoint(np.array([*(press + [0, 0, 0.10]), yaw]), self.grasp, self._steps(22)),
-                Waypoint(np.array([*press, yaw]), self.grasp, self._steps(16)),
+                Waypoint(np.array([*(press + [0, 0, 0.10]), yaw]), 1.0, self._steps(22)),
+                Waypoint(np.array([*press, yaw]), 1.0, self._steps(16)),
             ]
         elif isinstance(task, PullDrawer):  # grasp the bar (along the tool's y axis), pull along -x
             handle = task.handle(self.env.scene, self.env.data)
-            plan, grasp = self._grasp_plan(handle[:2], handle[2], self.rng.normal(0.0, 0.05))
+            yaw = self.rng.normal(0.0, 0.05)
+            plan, grasp = self._grasp_plan(handle[:2], handle[2], yaw)
             pulled = grasp - [task.opening + 0.05, 0, 0]
-            plan.append(Waypoint(np.array([*pulled, plan[0].pose[3]]), self.closed, self._steps(25)))
+            plan.append(Waypoint(np.array([*pulled, yaw]), SQUEEZE, self._steps(25)))
         else:
             raise ValueError(f"no scripted expert for task '{task.name}'")
-        return plan + [Waypoint(plan[-1].pose, plan[-1].hand, 40)]  # hold until the episode ends
+        return plan + [Waypoint(plan[-1].pose, plan[-1].closure, 40)]  # hold until the episode ends
+
+    def _target(self, waypoint: Waypoint) -> np.ndarray:
+        """The waypoint's tool pose; for a carry waypoint, shifted by where the object sits in the hand
+        (grasps move objects off the grasp centre), so the object, not the hand, gets there."""
+        if not waypoint.carry:
+            return waypoint.pose
+        if self.held is None:
+            obj = self.env.task.env_state(self.env.scene, self.env.data)[:3]
+            self.held = self.env.data.qpos[self.env.scene.wrist_qpos[:3]] - obj
+        return waypoint.pose + [*self.held, 0.0]
 
     def act(self) -> np.ndarray:
-        """The next action: waypoints interpolated with a smooth (minimum-jerk) profile, plus noise."""
+        """The next action: waypoints interpolated with a smooth (minimum-jerk) profile, the wrist kept
+        high enough that the hand, at its current closure, clears the table, plus noise."""
         i = min(int(np.searchsorted(self.schedule, self.t, side="right")), len(self.plan) - 1)
         prev = self.plan[i - 1] if i > 0 else self.start
         s = min(1.0, (self.t - (self.schedule[i - 1] if i > 0 else 0) + 1) / self.plan[i].steps)
         s = s**3 * (10 - 15 * s + 6 * s**2)
-        pose = prev.pose + s * (self.plan[i].pose - prev.pose)
-        fingers = prev.hand + s * (self.plan[i].hand - prev.hand)
+        pose = self._target(prev) + s * (self._target(self.plan[i]) - self._target(prev))
+        closure = prev.closure + s * (self.plan[i].closure - prev.closure)
+        pose[2] = max(pose[2], self.tool.reach_at(closure) + CLEARANCE)
         self.t += 1
         wrist = np.array([*(pose[:3] + self.rng.normal(0.0, ACTION_NOISE, 3)), pose[3], 0.0, 0.0])
-        return np.concatenate([wrist, fingers])
+        return np.concatenate([wrist, self.hand_pose(closure)])
 
     @property
     def done(self) -> bool:

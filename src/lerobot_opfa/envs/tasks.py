@@ -79,11 +79,13 @@ class Lift(Task):
     name = "lift"
     description = "lift the can"
     radius, half_height, lift_height = 0.032, 0.06, 0.08
+    mass = 0.35  # kg, a full 330 ml drink can (an empty one tips over at a fingertip's touch)
 
     def build(self, spec: mujoco.MjSpec) -> None:
         body = spec.worldbody.add_body(name="can", pos=[0, 0, self.half_height])
         body.add_freejoint(name="can")
-        _geom(body, [0.8, 0.15, 0.1, 1], type=CYLINDER, size=[self.radius, self.half_height, 0], mass=0.15)
+        size = [self.radius, self.half_height, 0]
+        _geom(body, [0.8, 0.15, 0.1, 1], type=CYLINDER, size=size, mass=self.mass)
 
     def bind(self, scene: Scene) -> None:
         self.qpos = scene.model.jnt_qposadr[scene.model.joint("can").id]

@@ -2,7 +2,9 @@
 thumb's tip and the other fingertips in the grasp pose), from which side it approaches (+z: from the
 wrist towards that point) and along which axis it squeezes (+x: thumb against fingers; a held bar lies
 along +y). The wrist is controlled in this frame, so one wrist
-trajectory brings any hand's grasp onto an object and scripted experts need no per-hand tuning."""
+trajectory brings any hand's grasp onto an object and scripted experts need no per-hand tuning.
+A dexterous thumb swings round while the fingers curl, so it closes on them along a direction that
+differs from +x (`squeeze_angle`): experts lay elongated objects across that direction."""
 
 from __future__ import annotations
 
@@ -17,7 +19,9 @@ from lerobot_opfa.hands.model import HandModel
 N_CLOUD = 3000
 N_TIP = 10  # points that make up a fingertip: the ones of a finger farthest from the wrist
 PRESS_BAND = 0.005  # m: points this close to the foremost one make up the press point
-CLOSURES = np.linspace(0.0, 1.0, 11)  # hand poses between open (0) and grasp (1) whose reach is tabled
+# Hand poses from open (0) through grasp (1) and on past it (experts squeeze past it) whose reach is tabled.
+CLOSURES = np.linspace(0.0, 1.5, 16)
+SQUEEZE_CLOSURE = 0.5  # `squeeze_angle` is read halfway through closing, where thumb and fingers meet objects
 
 
 @dataclass(frozen=True)
@@ -28,9 +32,10 @@ class ToolFrame:
     origin: np.ndarray  # (3,), grasp centre in the hand frame
     reach: np.ndarray  # how far the hand reaches past the origin along the approach axis, at `CLOSURES`
     press_point: np.ndarray  # (3,) in the tool frame: the closed hand's foremost point along the approach
+    squeeze_angle: float  # rad about +z from +x to the direction from the other fingertips to the thumb's
 
     def reach_at(self, closure: float) -> float:
-        """Reach of the hand `closure` of the way from its open to its grasp pose."""
+        """Reach of the hand `closure` of the way from its open to its grasp pose (past 1: beyond it)."""
         return float(np.interp(closure, CLOSURES, self.reach))
 
     def hand_in_tool(self) -> tuple[np.ndarray, np.ndarray]:
@@ -51,10 +56,13 @@ def _fingertips(points: np.ndarray, fingers: np.ndarray) -> dict[int, np.ndarray
 def _tool_frame_cached(hand: HandModel) -> ToolFrame:
     q_open, q_grasp = hand.pose("open"), hand.pose("grasp")
     closures = torch.as_tensor(CLOSURES, dtype=q_open.dtype, device=q_open.device)[:, None]
-    cloud = hand.point_cloud(q_open + closures * (q_grasp - q_open), N_CLOUD)
+    cloud = hand.point_cloud(
+        torch.clamp(q_open + closures * (q_grasp - q_open), hand.lower, hand.upper), N_CLOUD
+    )
     points = cloud.points.double().cpu().numpy()
     fingers = cloud.labels[0, :, 0].cpu().numpy()
-    open_tips, grasp_tips = _fingertips(points[0], fingers), _fingertips(points[-1], fingers)
+    grasp = int(np.argmin(np.abs(CLOSURES - 1.0)))
+    open_tips, grasp_tips = _fingertips(points[0], fingers), _fingertips(points[grasp], fingers)
     thumb = min(grasp_tips)  # finger index 1 (thumb, or a gripper's first jaw)
     others = [u for u in grasp_tips if u != thumb]
     if not others:
@@ -66,8 +74,17 @@ def _tool_frame_cached(hand: HandModel) -> ToolFrame:
     x /= np.linalg.norm(x)
     rotation = np.stack([x, np.cross(z, x), z], axis=1)
     depth = points @ z - origin @ z
-    tip = points[-1][depth[-1] >= depth[-1].max() - PRESS_BAND]
-    return ToolFrame(rotation, origin, depth.max(axis=1), rotation.T @ (tip.mean(0) - origin))
+    tip = points[grasp][depth[grasp] >= depth[grasp].max() - PRESS_BAND]
+    q_half = q_open + SQUEEZE_CLOSURE * (q_grasp - q_open)
+    tips = (hand.fingertip_positions(q_half[None])[0].double().cpu().numpy() - origin) @ rotation
+    squeeze = tips[0] - tips[1:].mean(0)  # one tip per finger, the thumb (or first jaw) first
+    return ToolFrame(
+        rotation,
+        origin,
+        depth.max(axis=1),
+        rotation.T @ (tip.mean(0) - origin),
+        float(np.arctan2(squeeze[1], squeeze[0])),
+    )
 
 
 def tool_frame(hand: HandModel) -> ToolFrame:
