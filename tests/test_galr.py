@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import torch
 
-from lerobot_opfa.galr.data import make_batch, masked_rmse, sample_batch
+from lerobot_opfa.galr.data import hand_counts, make_batch, masked_rmse, sample_batch
 from lerobot_opfa.galr.kpconv import kernel_points
 from lerobot_opfa.galr.model import Galr, GalrConfig, hand_record
 from lerobot_opfa.galr.train import PretrainConfig, pretrain
@@ -76,6 +76,18 @@ def test_latent_of_a_hand_does_not_depend_on_its_batch_mates():
     assert torch.allclose(alone, together, atol=1e-5)
     batch = make_batch(galr, {"leap": torch.cat([_joints("leap", 1, seed=5), _joints("leap", 7, seed=6)])})
     assert torch.allclose(alone, galr(*batch.encoder_inputs())[:1], atol=1e-5)
+
+
+def test_batch_shares_follow_joint_counts():
+    dofs, generator = [1, 6, 18], torch.Generator().manual_seed(0)
+    draws = torch.stack([hand_counts(dofs, 20, "dof", generator) for _ in range(2000)])
+    assert (draws.sum(1) == 20).all() and (draws >= 1).all()
+    # one state each, the other 17 in proportion to 1 : 6 : 18
+    expected = 1 + 17 * torch.tensor(dofs) / sum(dofs)
+    assert torch.allclose(draws.float().mean(0), expected, atol=0.15)
+    assert hand_counts(dofs, 20, "even", generator).tolist() in ([7, 7, 6], [7, 6, 7], [6, 7, 7])
+    with pytest.raises(ValueError, match="valid: dof, even"):
+        hand_counts(dofs, 20, "uniform", generator)
 
 
 def test_masked_loss_ignores_joints_a_hand_lacks():

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from lerobot_opfa.galr.data import SHARES
 from lerobot_opfa.galr.model import Galr, GalrConfig
 from lerobot_opfa.hands.registry import builtin_hands
 
@@ -23,6 +24,9 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     )
     pre.add_argument("--steps", type=int, default=3000)
     pre.add_argument("--batch-size", type=int, default=44)
+    pre.add_argument(
+        "--shares", choices=SHARES, default="dof", help="batch shares per hand: by joint count, or equal"
+    )
     pre.add_argument("--lr", type=float, default=1e-3)
     pre.add_argument("--output-dir", type=Path, required=True)
     pre.add_argument("--resume", action="store_true")
@@ -104,6 +108,7 @@ def _pretrain(args: argparse.Namespace) -> int:
         hands=_hand_list(args.hands, list(builtin_hands())),
         steps=args.steps,
         batch_size=args.batch_size,
+        shares=args.shares,
         lr=args.lr,
         validate_every=args.validate_every,
         save_every=args.save_every,

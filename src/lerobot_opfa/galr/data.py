@@ -38,13 +38,34 @@ def make_batch(galr: Galr, joints: dict[str, torch.Tensor]) -> HandBatch:
     return HandBatch(points, labels, level1, superpoints, groups)
 
 
-def sample_batch(galr: Galr, hands: list[str], batch_size: int, generator: torch.Generator) -> HandBatch:
-    """`batch_size` random reachable states, shared out evenly over `hands` (the remainder at random)."""
-    counts = torch.full((len(hands),), batch_size // len(hands))
-    counts[torch.randperm(len(hands), generator=generator)[: batch_size % len(hands)]] += 1
+SHARES = ("dof", "even")
+
+
+def hand_counts(dofs: list[int], batch_size: int, shares: str, generator: torch.Generator) -> torch.Tensor:
+    """States per hand in a batch of `batch_size`. `even`: equal shares (the remainder at random). `dof`:
+    one each, the rest drawn in proportion to the hands' joint counts, since an 18-joint hand has more to
+    learn from each batch than a 1-joint gripper."""
+    if shares not in SHARES:
+        raise ValueError(f"unknown hand shares '{shares}'; valid: {', '.join(SHARES)}")
+    n = len(dofs)
+    if shares == "even" or batch_size <= n:
+        counts = torch.full((n,), batch_size // n)
+        counts[torch.randperm(n, generator=generator)[: batch_size % n]] += 1
+        return counts
+    weights = torch.tensor(dofs, dtype=torch.float)
+    extra = torch.multinomial(weights, batch_size - n, replacement=True, generator=generator)
+    return 1 + torch.bincount(extra, minlength=n)
+
+
+def sample_batch(
+    galr: Galr, hands: list[str], batch_size: int, generator: torch.Generator, shares: str = "even"
+) -> HandBatch:
+    """`batch_size` random reachable states of `hands`, shared out as `hand_counts` says."""
+    models = [galr.hand(name)[0] for name in hands]
+    counts = hand_counts([m.dof for m in models], batch_size, shares, generator)
     joints = {
-        name: galr.hand(name)[0].sample_joints(int(n), generator)
-        for name, n in zip(hands, counts.tolist(), strict=True)
+        name: model.sample_joints(int(n), generator)
+        for name, model, n in zip(hands, models, counts.tolist(), strict=True)
         if n > 0
     }
     return make_batch(galr, joints)

@@ -29,6 +29,8 @@ class PretrainConfig:
     hands: list[str] = field(default_factory=lambda: list(builtin_hands()))
     steps: int = 3000
     batch_size: int = 44
+    shares: str = "dof"
+    """How a batch is shared out over the hands: `dof` (in proportion to their joints) or `even`."""
     lr: float = 1e-3
     min_lr: float = 1e-5
     weight_decay: float = 1e-4
@@ -147,7 +149,7 @@ def pretrain(config: PretrainConfig) -> Galr:
     while step < config.steps:
         for group in optimizer.param_groups:
             group["lr"] = learning_rate(config, step, time.monotonic() - start)
-        batch = sample_batch(model, config.hands, config.batch_size, generator)
+        batch = sample_batch(model, config.hands, config.batch_size, generator, config.shares)
         loss, per_hand = masked_rmse(model, batch, galr(*batch.encoder_inputs()))
         optimizer.zero_grad(set_to_none=True)
         accelerator.backward(loss)
