@@ -44,7 +44,7 @@ from lerobot_opfa.policy.joint_steps import OpfaDecodeJointsStep  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"
 HANDS = ["umi", "inspire", "leap"]
-MATCHED = dict(horizon=16, n_obs_steps=2, n_action_steps=8, down_dims=(128, 256, 384), device="cpu")
+MATCHED = dict(horizon=16, n_obs_steps=2, n_action_steps=8, down_dims=OpfaConfig.down_dims, device="cpu")
 
 
 def build_data(root: Path, galr_path: str | None, n_points: int) -> str:

@@ -71,7 +71,6 @@ SCALES = {
         eval_batch_size=25,
         n_points=256,
         policy_args=(
-            "--policy.down_dims=[64,128,256]",
             "--policy.pointcloud_widths=[32,64,128]",
             "--policy.optimizer_lr=3e-4",
         ),
@@ -85,7 +84,7 @@ SCALES = {
         eval_episodes=100,
         eval_batch_size=50,
         n_points=1024,
-        policy_args=(),
+        policy_args=("--policy.down_dims=[512,1024,2048]",),  # DP3's U-Net
     ),
 }
 
