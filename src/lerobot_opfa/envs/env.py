@@ -15,6 +15,7 @@ from lerobot_opfa.envs.scene import (
     DEPTH_CAMERAS,
     HOME,
     RENDER_CAMERA,
+    SCENERY_GROUP,
     WRIST_JOINTS,
     WRIST_RANGE,
     attach_hand,
@@ -172,7 +173,9 @@ class OpfaSimEnv(gym.Env):
             # 19 ms), and lerobot-eval renders every step of the episodes it films.
             self._renderer.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
             self._renderer.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = False
-        self._renderer.update_scene(self.data, camera=RENDER_CAMERA[0])
+            self._picture_option = mujoco.MjvOption()
+            self._picture_option.geomgroup[SCENERY_GROUP] = 1
+        self._renderer.update_scene(self.data, camera=RENDER_CAMERA[0], scene_option=self._picture_option)
         return self._renderer.render()
 
     def close(self) -> None:

@@ -29,6 +29,9 @@ DEPTH_CAMERAS = {"front": (-0.50, 0.0, 0.60), "left": (-0.40, 0.38, 0.50), "righ
 # 60 deg, for two thirds of the render cost under software GL.
 DEPTH_FOVY = 48.0
 COLLISION_GROUP = 3  # geom group MuJoCo does not draw by default (as in MuJoCo Menagerie models)
+# Drawn in pictures only (`OpfaSimEnv.render`): the floor lies below the table, outside every crop, and
+# depth cameras skip drawing it (a quarter of a depth render under software GL).
+SCENERY_GROUP = 5
 RENDER_CAMERA = ("view", (-0.80, -0.35, 0.62))
 LOOK_AT = (0.02, 0.0, 0.06)
 
@@ -103,7 +106,7 @@ def base_spec() -> mujoco.MjSpec:
     )
     world.add_geom(
         name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[2, 2, 0.1], pos=[0, 0, -0.75],
-        rgba=[0.3, 0.33, 0.36, 1], contype=0, conaffinity=0,
+        rgba=[0.3, 0.33, 0.36, 1], contype=0, conaffinity=0, group=SCENERY_GROUP,
     )  # fmt: skip
     world.add_geom(
         name="table", type=mujoco.mjtGeom.mjGEOM_BOX, size=list(TABLE_HALF), pos=[0, 0, -TABLE_HALF[2]],
