@@ -30,7 +30,7 @@ DEPTH_CAMERAS = {"front": (-0.50, 0.0, 0.60), "left": (-0.40, 0.38, 0.50), "righ
 DEPTH_FOVY = 48.0
 COLLISION_GROUP = 3  # geom group MuJoCo does not draw by default (as in MuJoCo Menagerie models)
 # Drawn in pictures only (`OpfaSimEnv.render`): the floor lies below the table, outside every crop, and
-# depth cameras skip drawing it (a quarter of a depth render under software GL).
+# depth cameras skip drawing it (a sixth to a third of a depth render under software GL).
 SCENERY_GROUP = 5
 RENDER_CAMERA = ("view", (-0.80, -0.35, 0.62))
 LOOK_AT = (0.02, 0.0, 0.06)
