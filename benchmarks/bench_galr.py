@@ -42,7 +42,7 @@ def _measure(kind: str, checkpoint: str | None, batch: int, repeats: int, queue:
     torch.set_num_threads(torch.get_num_threads())
     galr = _galr(checkpoint)
     inputs = sample_batch(
-        galr, galr.config.hand_names, batch, torch.Generator().manual_seed(0)
+        galr, galr.config.hand_names, batch, torch.Generator().manual_seed(0), "even"
     ).encoder_inputs()
     if kind == "galr_encoder":
         module, run = galr.encoder, lambda: galr(*inputs)

@@ -92,7 +92,7 @@ def test_batch_shares_follow_joint_counts():
 
 def test_masked_loss_ignores_joints_a_hand_lacks():
     galr = tiny_galr().train()
-    batch = sample_batch(galr, ["inspire"], 6, torch.Generator().manual_seed(0))
+    batch = sample_batch(galr, ["inspire"], 6, torch.Generator().manual_seed(0), "dof")
     loss, per_hand = masked_rmse(galr, batch, galr(*batch.encoder_inputs()))
     loss.backward()
     output = galr.decoder[-1]

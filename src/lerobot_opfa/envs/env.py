@@ -107,6 +107,8 @@ class OpfaSimEnv(gym.Env):
 
         self._cloud: DepthPointCloud | GeometryPointCloud | None = None
         self._renderer: mujoco.Renderer | None = None
+        self._picture_option = mujoco.MjvOption()  # what pictures show: the default groups and the scenery
+        self._picture_option.geomgroup[SCENERY_GROUP] = 1
         self.placement: Placement | None = None
         self.region: str | None = None
 
@@ -173,8 +175,6 @@ class OpfaSimEnv(gym.Env):
             # 19 ms), and lerobot-eval renders every step of the episodes it films.
             self._renderer.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
             self._renderer.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = False
-            self._picture_option = mujoco.MjvOption()
-            self._picture_option.geomgroup[SCENERY_GROUP] = 1
         self._renderer.update_scene(self.data, camera=RENDER_CAMERA[0], scene_option=self._picture_option)
         return self._renderer.render()
 

@@ -44,7 +44,7 @@ SHARES = ("dof", "even")
 def hand_counts(dofs: list[int], batch_size: int, shares: str, generator: torch.Generator) -> torch.Tensor:
     """States per hand in a batch of `batch_size`. `even`: equal shares (the remainder at random). `dof`:
     one each, the rest drawn in proportion to the hands' joint counts, since an 18-joint hand has more to
-    learn from each batch than a 1-joint gripper."""
+    learn from each batch than a 1-joint gripper (a batch no larger than the hand count is shared evenly)."""
     if shares not in SHARES:
         raise ValueError(f"unknown hand shares '{shares}'; valid: {', '.join(SHARES)}")
     n = len(dofs)
@@ -58,7 +58,7 @@ def hand_counts(dofs: list[int], batch_size: int, shares: str, generator: torch.
 
 
 def sample_batch(
-    galr: Galr, hands: list[str], batch_size: int, generator: torch.Generator, shares: str = "even"
+    galr: Galr, hands: list[str], batch_size: int, generator: torch.Generator, shares: str
 ) -> HandBatch:
     """`batch_size` random reachable states of `hands`, shared out as `hand_counts` says."""
     models = [galr.hand(name)[0] for name in hands]
