@@ -103,3 +103,15 @@ def test_spatial_experiment_toy_end_to_end_and_resume(tmp_path, capsys):
     }
     with pytest.raises(ValueError, match="cannot drive hand 'xhand'"):
         pre(observation)
+
+
+def test_work_folder_refuses_to_resume_at_another_scale(tmp_path):
+    from dataclasses import replace
+
+    from lerobot_opfa.experiments.jobs import Workspace
+
+    toy = get_scale("toy")
+    Workspace(tmp_path, toy, "galr")
+    Workspace(tmp_path, toy, "galr")  # same scale: resumes
+    with pytest.raises(ValueError, match="another scale.*steps"):
+        Workspace(tmp_path, replace(toy, steps=toy.steps + 1), "galr")

@@ -12,7 +12,7 @@ import shutil
 import subprocess
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from lerobot_opfa.datasets.io import atomic_directory
@@ -85,8 +85,27 @@ class Workspace:
 
     def __init__(self, root: Path, scale: Scale, galr: str):
         self.root, self.scale, self.galr = Path(root), scale, galr
+        self._check_scale()
         self.env = {**os.environ, "HF_HUB_OFFLINE": os.environ.get("HF_HUB_OFFLINE", "1")}
         self.env.setdefault("MUJOCO_GL", "egl")
+
+    def _check_scale(self) -> None:
+        """Cell names do not encode the scale, so a folder made at another scale (or with a scale whose
+        definition has changed since) would resume with checkpoints trained differently: refuse it."""
+        recorded, current = self.root / "scale.json", json.loads(json.dumps(asdict(self.scale)))
+        if recorded.exists():
+            previous = json.loads(recorded.read_text())
+            if previous != current:
+                changed = sorted(
+                    k for k in current.keys() | previous.keys() if current.get(k) != previous.get(k)
+                )
+                raise ValueError(
+                    f"{self.root} was made with another scale (differs in {', '.join(changed)}); "
+                    "use a new --output-dir or remove the folder"
+                )
+        else:
+            self.root.mkdir(parents=True, exist_ok=True)
+            recorded.write_text(json.dumps(current, indent=2))
 
     # --- demonstrations ---------------------------------------------------------------------------
     def demos(self, spec: Demos) -> Path:
