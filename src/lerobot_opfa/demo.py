@@ -90,7 +90,7 @@ def policy_table(args: argparse.Namespace) -> None:
     png = plot(rows, args.output_dir / "success.png", f"OPFA co-trained on {', '.join(hands)}")
     print(
         f"One OPFA policy, co-trained on {DEMO_SCALE.demos} scripted demos of each hand "
-        f"({DEMO_SCALE.steps} training steps); {DEMO_SCALE.eval_episodes} evaluation episodes per hand:\n"
+        f"({DEMO_SCALE.min_steps} training steps); {DEMO_SCALE.eval_episodes} evaluation episodes per hand:\n"
     )
     print(markdown_table(rows))
     print(f"plot: {png}; videos: {workspace.root / 'videos'}; policy: {workspace.root / 'train'}")

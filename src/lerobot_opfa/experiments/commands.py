@@ -41,11 +41,11 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         "--more-hands", default="umi,inspire,xhand,leap", help="a larger run on the first task ('' skips)"
     )
     fewshot = experiment.add_parser("fewshot", help="success against the number of demos of a new hand")
-    fewshot.add_argument("--task", default="lift")
+    fewshot.add_argument("--task", default="press_button")
     fewshot.add_argument("--new-hand", default="inspire")
     fewshot.add_argument("--other-hand", default="xhand")
     nine = experiment.add_parser("nine", help="nine embodiments, one region and eight demos each")
-    nine.add_argument("--task", default="lift")
+    nine.add_argument("--task", default="press_button")
     nine.add_argument("--hands", default=",".join(protocols.NINE_HANDS))
     nine.add_argument("--demos-per-hand", type=int, default=8)
     for parser in (spatial, fewshot, nine):

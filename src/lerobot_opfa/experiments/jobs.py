@@ -85,24 +85,30 @@ class Workspace:
 
     def __init__(self, root: Path, scale: Scale, galr: str):
         self.root, self.scale, self.galr = Path(root), scale, galr
-        self._check_scale()
+        self._check_settings()
         self.env = {**os.environ, "HF_HUB_OFFLINE": os.environ.get("HF_HUB_OFFLINE", "1")}
         self.env.setdefault("MUJOCO_GL", "egl")
 
-    def _check_scale(self) -> None:
-        """Cell names do not encode the scale, so a folder made at another scale (or with a scale whose
-        definition has changed since) would resume with checkpoints trained differently: refuse it."""
-        recorded, current = self.root / "scale.json", json.loads(json.dumps(asdict(self.scale)))
+    def _check_settings(self) -> None:
+        """Cell names encode neither the scale nor the GaLR checkpoint, so a folder made with others (or
+        with a scale whose definition has changed since) would resume with stale latents and policies:
+        refuse it."""
+        recorded = self.root / "settings.json"
+        scale = {f"scale.{k}": v for k, v in asdict(self.scale).items()}
+        current = json.loads(json.dumps({**scale, "galr": galr_identity(self.galr)}))
         if recorded.exists():
             previous = json.loads(recorded.read_text())
-            if previous != current:
-                changed = sorted(
-                    k for k in current.keys() | previous.keys() if current.get(k) != previous.get(k)
-                )
+            changed = sorted(k for k in current.keys() | previous.keys() if current.get(k) != previous.get(k))
+            if changed:
                 raise ValueError(
-                    f"{self.root} was made with another scale (differs in {', '.join(changed)}); "
+                    f"{self.root} was made with other settings ({', '.join(changed)} differ); "
                     "use a new --output-dir or remove the folder"
                 )
+        elif self.root.exists() and any(self.root.iterdir()):
+            raise ValueError(
+                f"{self.root} holds results but no settings.json (made by an older version, with settings "
+                "that cannot be checked); use a new --output-dir or remove the folder"
+            )
         else:
             self.root.mkdir(parents=True, exist_ok=True)
             recorded.write_text(json.dumps(current, indent=2))
@@ -155,9 +161,7 @@ class Workspace:
                 "--policy.push_to_hub=false",
                 "--wandb.enable=false",
                 "--num_workers=1",
-                f"--save_freq={self.scale.steps}",
-                f"--log_freq={max(1, self.scale.steps // 20)}",
-                *self.scale.train_args(),
+                *self.scale.train_args(_frames(dataset)),
             ]
             self._run("lerobot-train", args, self.root / "logs" / f"train-{training.name}.log")
             (partial / "opfa_training.json").write_text(
@@ -226,6 +230,21 @@ class Workspace:
         if code != 0:
             tail = log.read_text()[-3000:]
             raise RuntimeError(f"{exe} failed (exit {code}); log {log}:\n{tail}")
+
+
+def galr_identity(galr: str) -> str:
+    """A local checkpoint by its weights' content (a regenerated one is another checkpoint), a Hub repo
+    id by name."""
+    import hashlib
+
+    weights = Path(galr) / "model.safetensors"
+    if weights.is_file():
+        return "sha256:" + hashlib.sha256(weights.read_bytes()).hexdigest()
+    return galr
+
+
+def _frames(dataset: Path) -> int:
+    return json.loads((dataset / "meta" / "info.json").read_text())["total_frames"]
 
 
 def _cuda() -> bool:

@@ -1,11 +1,16 @@
-"""How big an experiment runs: demonstrations, training steps, policy size and evaluation episodes.
+"""How big an experiment runs: demonstrations, training length, policy size and evaluation episodes.
 
-`paper` uses the paper's counts (72 demonstrations per embodiment, DP3-sized training); `small` is sized to
-finish each experiment on a 2-core CPU machine within two hours; `toy` exists for the tests.
+Training length is counted in epochs, as DP3 does, so a policy co-trained on nine hands' demos takes nine
+times the steps of one trained on a single hand's, clamped to [min_steps, max_steps].
+
+`paper` uses the paper's counts (72 demonstrations per embodiment, DP3's 3000 epochs and U-Net); `small` is
+sized to finish each experiment on a 2-core CPU machine within two hours (a `lerobot-train` step of 32 samples
+costs about 0.6 s there, bound by LeRobot's dataset reads); `toy` exists for the tests.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 
@@ -16,7 +21,10 @@ class Scale:
     """Demonstrations per embodiment (the paper's 72)."""
     fewshot_counts: tuple[int, ...]
     """Demonstrations of the new embodiment in the few-shot experiment."""
-    steps: int
+    epochs: float
+    """Passes over the training dataset."""
+    min_steps: int
+    max_steps: int | None
     batch_size: int
     eval_episodes: int
     """Episodes per evaluated (condition, embodiment) cell."""
@@ -27,13 +35,20 @@ class Scale:
     episode_length: int | None = None
     """Steps per evaluation episode; None: the task's default."""
 
-    def train_args(self) -> list[str]:
-        warmup = min(500, self.steps // 10)
+    def steps(self, frames: int) -> int:
+        """Optimiser steps for a dataset of `frames` frames."""
+        steps = max(self.min_steps, math.ceil(self.epochs * frames / self.batch_size))
+        return steps if self.max_steps is None else min(self.max_steps, steps)
+
+    def train_args(self, frames: int) -> list[str]:
+        steps = self.steps(frames)
         return [
-            f"--steps={self.steps}",
+            f"--steps={steps}",
             f"--batch_size={self.batch_size}",
-            f"--policy.scheduler_warmup_steps={warmup}",
-            f"--policy.scheduler_decay_steps={self.steps}",
+            f"--policy.scheduler_warmup_steps={min(500, steps // 10)}",
+            f"--policy.scheduler_decay_steps={steps}",
+            f"--save_freq={steps}",
+            f"--log_freq={max(1, steps // 20)}",
             *self.policy_args,
         ]
 
@@ -45,7 +60,9 @@ SCALES = {
         name="toy",
         demos=2,
         fewshot_counts=(1, 2),
-        steps=2,
+        epochs=1,
+        min_steps=2,
+        max_steps=2,
         batch_size=4,
         eval_episodes=2,
         eval_batch_size=2,
@@ -65,7 +82,9 @@ SCALES = {
         name="small",
         demos=24,
         fewshot_counts=PAPER_FEWSHOT_COUNTS,
-        steps=1000,
+        epochs=10,
+        min_steps=200,
+        max_steps=2000,
         batch_size=32,
         eval_episodes=50,
         eval_batch_size=25,
@@ -79,7 +98,9 @@ SCALES = {
         name="paper",
         demos=72,
         fewshot_counts=PAPER_FEWSHOT_COUNTS,
-        steps=30_000,
+        epochs=3000,  # DP3's
+        min_steps=0,
+        max_steps=None,
         batch_size=128,
         eval_episodes=100,
         eval_batch_size=50,
@@ -93,7 +114,9 @@ DEMO_SCALE = Scale(
     name="demo",
     demos=12,
     fewshot_counts=(),
-    steps=200,
+    epochs=0,
+    min_steps=200,
+    max_steps=200,
     batch_size=32,
     eval_episodes=10,
     eval_batch_size=10,
