@@ -14,7 +14,7 @@ import torch
 from lerobot_opfa.cli import main
 from lerobot_opfa.envs.regions import REGIONS
 from lerobot_opfa.experiments import protocols
-from lerobot_opfa.experiments.report import wilson_interval
+from lerobot_opfa.experiments.report import markdown_table, summarize, wilson_interval
 from lerobot_opfa.experiments.scales import get_scale
 
 
@@ -30,6 +30,17 @@ def test_wilson_interval():
     assert wilson_interval(0, 50) == pytest.approx((0.0, 0.0713), abs=1e-4)
     assert wilson_interval(25, 50) == pytest.approx((0.3664, 0.6336), abs=1e-4)
     assert wilson_interval(50, 50) == pytest.approx((0.9287, 1.0), abs=1e-4)
+
+
+def test_table_pools_the_episodes_of_all_embodiments():
+    def cell(hand, condition, wins):
+        return {"group": "press_button", "hand": hand, "condition": condition,
+                "successes": [True] * wins + [False] * (50 - wins)}  # fmt: skip
+
+    rows = summarize([cell("umi", "wo_cotrain", 2), cell("leap", "wo_cotrain", 10), cell("umi", "opfa", 7)])
+    lines = markdown_table(rows).splitlines()
+    pooled = lines[lines.index("| **all embodiments**, episodes pooled (%) | |") + 1 :]
+    assert pooled == ["| w/o co-training | 12 [7, 20] |", "| OPFA | 14 [7, 26] |"]  # 12/100, 7/50
 
 
 def test_protocol_cells():
@@ -105,13 +116,31 @@ def test_spatial_experiment_toy_end_to_end_and_resume(tmp_path, capsys):
         pre(observation)
 
 
-def test_work_folder_refuses_to_resume_at_another_scale(tmp_path):
+def test_work_folder_refuses_to_resume_with_other_settings(tmp_path):
     from dataclasses import replace
 
     from lerobot_opfa.experiments.jobs import Workspace
 
-    toy = get_scale("toy")
-    Workspace(tmp_path, toy, "galr")
-    Workspace(tmp_path, toy, "galr")  # same scale: resumes
-    with pytest.raises(ValueError, match="another scale.*steps"):
-        Workspace(tmp_path, replace(toy, steps=toy.steps + 1), "galr")
+    toy, galr = get_scale("toy"), tmp_path / "galr"
+    galr.mkdir()
+    (galr / "model.safetensors").write_bytes(b"weights")
+    root = tmp_path / "work"
+    Workspace(root, toy, str(galr))
+    Workspace(root, toy, str(galr))  # same settings: resumes
+    with pytest.raises(ValueError, match=r"other settings \(scale.epochs, scale.max_steps differ\)"):
+        Workspace(root, replace(toy, epochs=2, max_steps=3), str(galr))
+    (galr / "model.safetensors").write_bytes(b"regenerated weights")
+    with pytest.raises(ValueError, match=r"other settings \(galr differ\)"):
+        Workspace(root, toy, str(galr))
+    (root / "settings.json").unlink()  # a folder from before settings were recorded ...
+    (root / "train").mkdir()  # ... with results in it
+    with pytest.raises(ValueError, match="no settings.json"):
+        Workspace(root, toy, str(galr))
+
+
+def test_training_length_is_counted_in_epochs_within_bounds():
+    small = get_scale("small")
+    assert small.steps(frames=small.batch_size * 100) == 100 * small.epochs
+    assert small.steps(frames=1) == small.min_steps
+    assert small.steps(frames=10**9) == small.max_steps
+    assert get_scale("paper").steps(frames=128 * 1000) == 3000 * 1000

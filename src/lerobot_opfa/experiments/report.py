@@ -35,24 +35,29 @@ def summarize(cells: list[dict]) -> list[dict]:
 
 
 def markdown_table(rows: list[dict]) -> str:
+    """One block per embodiment and, for several, a block pooling their episodes (the paper's averages)."""
     groups = list(dict.fromkeys(r["group"] for r in rows))
     hands = list(dict.fromkeys(r["hand"] for r in rows))
     conditions = [c for c in CONDITION_LABELS if any(r["condition"] == c for r in rows)]
-    index = {(r["group"], r["hand"], r["condition"]): r for r in rows}
+    blocks = [(f"**{hand}** success rate (%)", [hand]) for hand in hands]
+    if len(hands) > 1:
+        blocks.append(("**all embodiments**, episodes pooled (%)", hands))
     lines = [f"| condition | {' | '.join(groups)} |", "|---|" + "---|" * len(groups)]
-    for hand in hands:
-        lines.append(f"| **{hand}** success rate (%) |" + " |" * len(groups))
+    for title, members in blocks:
+        lines.append(f"| {title} |" + " |" * len(groups))
         for condition in conditions:
             cells = []
             for group in groups:
-                r = index.get((group, hand, condition))
-                if r is None:
-                    cells.append("")
-                else:
-                    low, high = r["ci95"]
-                    cells.append(f"{100 * r['success_rate']:.0f} [{100 * low:.0f}, {100 * high:.0f}]")
+                found = [r for r in rows if (r["group"], r["condition"]) == (group, condition)]
+                successes = [s for r in found if r["hand"] in members for s in r["successes"]]
+                cells.append(_rate_text(sum(successes), len(successes)) if successes else "")
             lines.append(f"| {CONDITION_LABELS[condition]} | {' | '.join(cells)} |")
     return "\n".join(lines) + "\n"
+
+
+def _rate_text(wins: int, n: int) -> str:
+    low, high = wilson_interval(wins, n)
+    return f"{100 * wins / n:.0f} [{100 * low:.0f}, {100 * high:.0f}]"
 
 
 def plot(rows: list[dict], out: Path, title: str, curve: bool = False) -> Path:
