@@ -69,7 +69,7 @@ class OpfaConfig(PreTrainedConfig):
     pointcloud_feature_dim: int = 64
 
     # FiLM-conditioned 1-D U-Net. DP3 uses 512/1024/2048 (the `paper` experiment scale); this default samples
-    # a chunk in under 50 ms on 2 CPU cores (benchmarks/bench_policy.py) and trains there in hours, not days.
+    # a chunk in 40-70 ms on 2 CPU cores (benchmarks/bench_policy.py) and trains there in hours, not days.
     down_dims: tuple[int, ...] = (64, 128, 256)
     kernel_size: int = 5
     n_groups: int = 8
