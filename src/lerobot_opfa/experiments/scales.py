@@ -5,7 +5,8 @@ times the steps of one trained on a single hand's, clamped to [min_steps, max_st
 
 `paper` uses the paper's counts (72 demonstrations per embodiment, DP3's 3000 epochs and U-Net); `small` is
 sized to finish each experiment on a 2-core CPU machine within two hours (a `lerobot-train` step of 32 samples
-costs about 0.6 s there, bound by LeRobot's dataset reads); `toy` exists for the tests.
+costs about 0.5 s there with the runner's loader settings, bound by LeRobot's dataset reads); `toy` exists
+for the tests.
 """
 
 from __future__ import annotations
