@@ -14,7 +14,7 @@ from conftest import BUILTIN_HANDS
 from lerobot_opfa.envs.config import EPISODE_STEPS, OpfaEnvConfig
 from lerobot_opfa.envs.env import OpfaSimEnv
 from lerobot_opfa.envs.experts import SQUEEZE, ScriptedExpert
-from lerobot_opfa.envs.observation import WORKSPACE_HIGH, WORKSPACE_LOW
+from lerobot_opfa.envs.observation import DEPTH_QUALITY, WORKSPACE_HIGH, WORKSPACE_LOW
 from lerobot_opfa.envs.regions import REGIONS, parse_regions
 from lerobot_opfa.envs.tasks import TASKS
 
@@ -85,7 +85,9 @@ def test_depth_point_cloud_sees_the_object():
     assert np.all(cloud > WORKSPACE_LOW) and np.all(cloud < WORKSPACE_HIGH)
     can = obs["environment_state"][:3]
     assert np.sum(np.linalg.norm(cloud[:, :2] - can[:2], axis=1) < 0.04) >= 20
-    frame = env.render()
+    quality = env.model.vis.quality  # the depth context's cheap settings were not left on the model
+    assert {k: getattr(quality, k) for k in DEPTH_QUALITY} != DEPTH_QUALITY
+    frame = env.render()  # a picture context bigger than the depth image: offwidth/offheight restored
     assert frame.dtype == np.uint8 and frame.shape == (240, 320, 3)
     env.close()
 
