@@ -48,8 +48,12 @@ def markdown_table(rows: list[dict]) -> str:
         for condition in conditions:
             cells = []
             for group in groups:
-                found = [r for r in rows if (r["group"], r["condition"]) == (group, condition)]
-                successes = [s for r in found if r["hand"] in members for s in r["successes"]]
+                successes = [
+                    s
+                    for r in rows
+                    if (r["group"], r["condition"]) == (group, condition) and r["hand"] in members
+                    for s in r["successes"]
+                ]
                 cells.append(_rate_text(sum(successes), len(successes)) if successes else "")
             lines.append(f"| {CONDITION_LABELS[condition]} | {' | '.join(cells)} |")
     return "\n".join(lines) + "\n"
