@@ -2,7 +2,8 @@
 training steps per second (GaLR space with cached latents, raw joints, GaLR encoded on the fly, stock
 diffusion) and latency per action chunk at batch 1 (horizon 16, 2 observation steps, 8 action steps,
 10 DDIM steps for both), split into preprocessor (opfa: GaLR encode of the hand state), `select_action`
-and postprocessor (opfa: GaLR decode), plus opfa's point encoder / U-Net loop / GaLR decode on their own.
+and postprocessor (opfa: GaLR decode), plus opfa's point encoder / U-Net loop / GaLR decode on their own,
+and opfa sampled through float32 weights (`cpu_float16_weights=False`) with its largest action difference.
 
     .venv/bin/python benchmarks/bench_policy.py [--galr outputs/galr_default] [--steps 10]
 
@@ -119,12 +120,29 @@ def chunk_times(policy, pre, post, obs: dict) -> tuple[float, float, float]:
         return t1 - t0, t2 - t1, time.perf_counter() - t2
 
 
-def opfa_breakdown_ms(policy, pre, post, obs: dict, repeats: int) -> dict[str, float]:
-    """The three stages of a chunk timed on their own: point encoder, 10-step U-Net loop, GaLR decode."""
+def history(pre, obs: dict) -> dict:
+    """The preprocessed observation repeated over both observation steps, as the policy's queues hold it."""
     batch = pre(dict(obs))
     stacked = ("observation.state", OBS_POINTCLOUD)
-    batch = {k: v.unsqueeze(1).expand(-1, 2, *v.shape[1:]) if k in stacked else v
-             for k, v in batch.items() if isinstance(v, torch.Tensor)}  # fmt: skip
+    return {k: v.unsqueeze(1).expand(-1, 2, *v.shape[1:]) if k in stacked else v
+            for k, v in batch.items() if isinstance(v, torch.Tensor)}  # fmt: skip
+
+
+def chunk_difference(policy, reference, pre, obs: dict) -> float:
+    """Largest difference between two policies' action chunks (normalised units) for one observation and
+    one noise draw."""
+    batch = history(pre, obs)
+    noise = torch.randn(1, policy.config.horizon, policy.unet.action_dim)
+    chunks = []
+    for p in (policy, reference):
+        p.reset()
+        chunks.append(p.predict_action_chunk(batch, noise=noise))
+    return (chunks[0] - chunks[1]).abs().max().item()
+
+
+def opfa_breakdown_ms(policy, pre, post, obs: dict, repeats: int) -> dict[str, float]:
+    """The three stages of a chunk timed on their own: point encoder, 10-step U-Net loop, GaLR decode."""
+    batch = history(pre, obs)
     parts = {"point_encoder": [], "unet_loop": [], "galr_decode": []}
     decode = next(step for step in post.steps if isinstance(step, OpfaDecodeJointsStep))
     with torch.inference_mode():
@@ -170,14 +188,24 @@ def main() -> None:
             ),
         }
         built = {name: build(config, root, dataset_name) for name, (config, dataset_name) in variants.items()}
+        # The same weights, sampled through float32 weights: what `cpu_float16_weights` saves and changes.
+        float32 = "opfa galr (cached z), float32 weights"
+        config = OpfaConfig(galr_path=galr_path, cpu_float16_weights=False, **MATCHED)
+        variants[float32] = (config, "merged")
+        built[float32] = build(config, root, "merged")
         # Round-robin over the variants, so load from other processes hits them all alike.
         online = "opfa galr, z encoded per step"  # a GaLR forward per frame: a few steps suffice
-        timers = {name: TrainTimer(p, pre, ds, args.batch_size) for name, (p, pre, _, ds) in built.items()}
+        timers = {
+            name: TrainTimer(p, pre, ds, args.batch_size)
+            for name, (p, pre, _, ds) in built.items()
+            if name != float32  # trains exactly as the float16 one
+        }
         steps = {name: [] for name in built}
         for round_ in range(args.steps + 2):
             for name, timer in timers.items():
                 if name != online or round_ < 4:
                     steps[name].append(timer())
+        built[float32][0].load_state_dict(built["opfa galr (cached z)"][0].state_dict())
         latency = {name: [] for name in built if name != online}
         for _ in range(args.repeats + 2):
             for name in latency:
@@ -188,7 +216,8 @@ def main() -> None:
         rows = []
         for name, (_, dataset_name) in variants.items():
             row = {"variant": name, "dataset": dataset_name}
-            row["train_steps_per_s"] = 1.0 / statistics.median(steps[name][2:])
+            if name in timers:
+                row["train_steps_per_s"] = 1.0 / statistics.median(steps[name][2:])
             if name in latency:
                 for i, part in enumerate(("preprocessor_ms", "select_action_ms", "postprocessor_ms")):
                     row[part] = 1000 * statistics.median(t[i] for t in latency[name][2:])
@@ -200,6 +229,9 @@ def main() -> None:
         policy, pre, post, dataset = built["opfa galr (cached z)"]
         breakdown = opfa_breakdown_ms(policy, pre, post, observation(dataset, "leap", False), args.repeats)
         print("opfa breakdown (ms):", {k: round(v, 2) for k, v in breakdown.items()})
+        obs = observation(dataset, "leap", False)
+        float16_error = chunk_difference(policy, built[float32][0], pre, obs)
+        print(f"float16 vs float32 weights, largest action difference: {float16_error:.2e}")
 
     by = {r["variant"]: r for r in rows}
     opfa, raw, stock = (
@@ -230,13 +262,20 @@ def main() -> None:
         "opfa_select_action_breakdown_ms": breakdown,
         "galr_step_time_vs_raw": raw["train_steps_per_s"] / opfa["train_steps_per_s"],
         "opfa_vs_stock_select_action_speedup": stock["select_action_ms"] / opfa["select_action_ms"],
+        "float16_vs_float32_weights_select_action_speedup": by[float32]["select_action_ms"]
+        / opfa["select_action_ms"],
+        "float16_vs_float32_weights_max_action_difference": float16_error,
     }
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / "policy.json").write_text(json.dumps(result, indent=2))
 
     fig, (left, right) = plt.subplots(1, 2, figsize=(12, 4.5))
-    names = [r["variant"] for r in rows]
-    left.barh(names, [r["train_steps_per_s"] for r in rows], color=["C0", "C1", "C2", "C3"])
+    trained = [r for r in rows if "train_steps_per_s" in r]
+    left.barh(
+        [r["variant"] for r in trained],
+        [r["train_steps_per_s"] for r in trained],
+        color=["C0", "C1", "C2", "C3"],
+    )
     left.set_xlabel(f"training steps per second (batch {args.batch_size})")
     left.invert_yaxis()
     timed = [r for r in rows if "select_action_ms" in r]
@@ -245,8 +284,8 @@ def main() -> None:
         values = [r[part] for r in timed]
         right.barh([r["variant"] for r in timed], values, left=offsets, color=f"C{i + 4}", label=part[:-3])
         offsets = [o + v for o, v in zip(offsets, values, strict=True)]
-    right.axvline(50, color="k", ls="--", lw=0.8, label="50 ms target")
-    right.set_xlabel("ms per action chunk (batch 1): preprocessor + select_action + postprocessor")
+    right.axvline(50, color="k", ls="--", lw=0.8, label="50 ms target (select_action)")
+    right.set_xlabel("ms per action chunk, batch 1 (stacked)")
     right.invert_yaxis()
     right.legend(fontsize=8)
     fig.suptitle(

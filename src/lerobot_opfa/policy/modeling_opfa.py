@@ -66,6 +66,7 @@ class OpfaPolicy(PreTrainedPolicy):
             step_embed_dim=config.diffusion_step_embed_dim,
             use_scale=config.use_film_scale_modulation,
             n_heads=n_heads,
+            cpu_float16_weights=config.cpu_float16_weights,
         )
         self.ddim = Ddim(
             config.num_train_timesteps,
