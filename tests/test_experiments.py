@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import time
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -144,3 +145,16 @@ def test_training_length_is_counted_in_epochs_within_bounds():
     assert small.steps(frames=1) == small.min_steps
     assert small.steps(frames=10**9) == small.max_steps
     assert get_scale("paper").steps(frames=128 * 1000) == 3000 * 1000
+
+
+def test_run_log_counts_an_interrupted_run(tmp_path):
+    """The wall-time log is rewritten after every cell, so a run that never finishes still counts."""
+    from lerobot_opfa.experiments.commands import _durations
+
+    (tmp_path / "runs.json").write_text("[100.0]")  # the older format: completed runs only
+    start = time.monotonic() - 50
+    first = _durations(tmp_path, start, "interrupted run")
+    later = _durations(tmp_path, start, "interrupted run")  # a later cell replaces the run's entry
+    assert first["runs"] == later["runs"] == 2
+    assert 150 <= later["wall_seconds_all_runs"] < 160
+    assert json.loads((tmp_path / "runs.json").read_text())["run 0"] == 100.0

@@ -13,6 +13,7 @@ import platform
 import shlex
 import sys
 import time
+from datetime import datetime
 from pathlib import Path
 
 from tqdm import tqdm
@@ -74,7 +75,7 @@ def cells_of(args: argparse.Namespace) -> list[protocols.Cell]:
 
 
 def run(args: argparse.Namespace) -> int:
-    start = time.monotonic()
+    start, run_id = time.monotonic(), datetime.now().isoformat()
     cells = cells_of(args)
     name = f"{args.experiment}_{args.scale}"
     root = args.output_dir or Path("outputs/experiments") / name
@@ -91,23 +92,28 @@ def run(args: argparse.Namespace) -> int:
     for cell in tqdm(cells, desc=f"experiment {args.experiment}", unit="cell"):
         result = workspace.evaluate(cell.evaluation)
         rows.append({"group": cell.group, **{k: v for k, v in result.items() if k != "success_rate"}})
-        write_report(summarize(rows), out_dir, name, {**meta, **_durations(root, start)}, curve)
-    report = write_report(summarize(rows), out_dir, name, {**meta, **_durations(root, start, True)}, curve)
+        write_report(summarize(rows), out_dir, name, {**meta, **_durations(root, start, run_id)}, curve)
+    report = write_report(summarize(rows), out_dir, name, {**meta, **_durations(root, start, run_id)}, curve)
     print(f"\n{TITLES[args.experiment]} ({args.scale} scale)\n")
     print(report["table_markdown"])
     print(f"report: {out_dir / name}.{{json,md,png}}")
     return 0
 
 
-def _durations(root: Path, start: float, final: bool = False) -> dict:
-    """This invocation's wall time and, over resumed runs, the total (kept in the work folder)."""
+def _durations(root: Path, start: float, run_id: str) -> dict:
+    """This invocation's wall time and the total over resumed runs. The log in the work folder is
+    rewritten after every cell, so a run that is interrupted still counts up to its last finished cell."""
     log = root / "runs.json"
-    runs = [*(json.loads(log.read_text()) if log.exists() else []), round(time.monotonic() - start, 1)]
-    if final:
-        log.write_text(json.dumps(runs))
+    runs = json.loads(log.read_text()) if log.exists() else {}
+    if isinstance(runs, list):  # written before session 6: one entry per completed run
+        runs = {f"run {i}": seconds for i, seconds in enumerate(runs)}
+    runs[run_id] = round(time.monotonic() - start, 1)
+    partial = log.with_suffix(".json.partial")
+    partial.write_text(json.dumps(runs, indent=1))
+    partial.replace(log)
     return {
-        "wall_seconds_this_run": runs[-1],
-        "wall_seconds_all_runs": round(sum(runs), 1),
+        "wall_seconds_this_run": runs[run_id],
+        "wall_seconds_all_runs": round(sum(runs.values()), 1),
         "runs": len(runs),
     }
 
