@@ -94,7 +94,8 @@ def plot(rows: list[dict], out: Path, title: str, curve: bool = False) -> Path:
             err = np.array([_error_bar(r) for r in found]).T
             ax.bar(x, y, width, yerr=err, capsize=2, label=CONDITION_LABELS[condition])
         multiple_groups = len({k[0] for k in keys}) > 1
-        ax.set_xticks(range(len(keys)), [f"{h}\n{g}" if multiple_groups else h for g, h in keys], fontsize=8)
+        labels = ["\n".join([h, *g.split(", ")]) if multiple_groups else h for g, h in keys]
+        ax.set_xticks(range(len(keys)), labels, fontsize=8)
     ax.set_ylabel("success rate (%), 95% Wilson interval")
     ax.set_ylim(0, 100)
     ax.set_title(title)
