@@ -227,9 +227,9 @@ def main() -> None:
             rows.append(row)
             print({k: round(v, 2) if isinstance(v, float) else v for k, v in row.items()})
         policy, pre, post, dataset = built["opfa galr (cached z)"]
-        breakdown = opfa_breakdown_ms(policy, pre, post, observation(dataset, "leap", False), args.repeats)
-        print("opfa breakdown (ms):", {k: round(v, 2) for k, v in breakdown.items()})
         obs = observation(dataset, "leap", False)
+        breakdown = opfa_breakdown_ms(policy, pre, post, obs, args.repeats)
+        print("opfa breakdown (ms):", {k: round(v, 2) for k, v in breakdown.items()})
         float16_error = chunk_difference(policy, built[float32][0], pre, obs)
         print(f"float16 vs float32 weights, largest action difference: {float16_error:.2e}")
 

@@ -92,8 +92,9 @@ def run(args: argparse.Namespace) -> int:
     for cell in tqdm(cells, desc=f"experiment {args.experiment}", unit="cell"):
         result = workspace.evaluate(cell.evaluation)
         rows.append({"group": cell.group, **{k: v for k, v in result.items() if k != "success_rate"}})
-        write_report(summarize(rows), out_dir, name, {**meta, **_durations(root, start, run_id)}, curve)
-    report = write_report(summarize(rows), out_dir, name, {**meta, **_durations(root, start, run_id)}, curve)
+        report = write_report(
+            summarize(rows), out_dir, name, {**meta, **_durations(root, start, run_id)}, curve
+        )
     print(f"\n{TITLES[args.experiment]} ({args.scale} scale)\n")
     print(report["table_markdown"])
     print(f"report: {out_dir / name}.{{json,md,png}}")
