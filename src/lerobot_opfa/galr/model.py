@@ -18,7 +18,7 @@ from lerobot_opfa.galr.kpconv import KPConv, ResidualBlock
 from lerobot_opfa.galr.neighbors import gather_neighbors, radius_neighbors
 from lerobot_opfa.galr.pointnet import PointNetEncoder
 from lerobot_opfa.galr.pyramid import PyramidIndex, pyramid_index
-from lerobot_opfa.galr.transformer import GeometricTransformer, SemanticEmbedding
+from lerobot_opfa.galr.transformer import GeometricTransformer, SemanticEmbedding, SemanticTarget
 from lerobot_opfa.hands.model import HandModel
 from lerobot_opfa.hands.registry import builtin_hands, load_hand
 from lerobot_opfa.hands.universal import UNIVERSAL_JOINT_NAMES, UNIVERSAL_JOINTS
@@ -33,6 +33,9 @@ class GalrConfig:
     latent_dim: int = 64
     encoder: Literal["kpconv_transformer", "pointnet"] = "kpconv_transformer"
     semantic_embedding: SemanticEmbedding = "linear"
+    semantic_target: SemanticTarget = "features"
+    """Where r^s enters the transformer: the superpoint features (`features`) or the attention's relative
+    term (`attention`, the only choice before this field existed; see `transformer.py`)."""
     decoder: Literal["unified", "per_embodiment"] = "unified"
     n_points: int = 1024
     n_level1: int = 256
@@ -109,6 +112,7 @@ class KPConvTransformerEncoder(nn.Module):
             dl2,
             config.semantic_embedding,
             config.structure_dim,
+            config.semantic_target,
         )
         self.to_latent = nn.Linear(config.transformer_dim, config.latent_dim)
 
@@ -149,6 +153,8 @@ class Galr(nn.Module, PyTorchModelHubMixin, library_name="lerobot-opfa", tags=["
 
     def __init__(self, config: GalrConfig | dict):
         super().__init__()
+        if isinstance(config, dict) and "semantic_target" not in config:
+            config = config | {"semantic_target": "attention"}  # a checkpoint saved before the field existed
         self.config = config if isinstance(config, GalrConfig) else GalrConfig(**config)
         encoders = {"kpconv_transformer": KPConvTransformerEncoder, "pointnet": PointNetLatentEncoder}
         self.encoder = encoders[self.config.encoder](self.config)

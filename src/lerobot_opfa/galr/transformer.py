@@ -5,9 +5,13 @@ r^p_ij: sinusoidal embedding of the distance |p_i - p_j| / sigma_d, plus a poole
 the angles between (p_x - p_i) and (p_j - p_i) / sigma_a over the k nearest neighbours x of p_i.
 r^s_j: the (finger u, segment v) label of superpoint j, either the paper's literal [u, v] W_S
 ("linear"), one learned vector per finger plus one per segment ("table"), or nothing ("none").
-Attention uses r_ij = r^p_ij + r^s_j as GeoTransformer's relative position term:
-score_ij = q_i . (k_j + W_r r_ij) / sqrt(d_head). Angles use the cosine of the two directions (no cross
-products), and r lives in a narrow dimension (`relative_dim`), the only change of substance for CPU speed.
+Attention uses r^p_ij as GeoTransformer's relative position term: score_ij = q_i . (k_j + W_r r_ij) /
+sqrt(d_head). r^s goes either into the feature space, added to each superpoint's features (`features`,
+the paper's r^s in R^{d_t}), or into the relative term, r_ij = r^p_ij + r^s_j (`attention`). Only
+`features` lets a superpoint's value say which finger it is on: with `attention`, a bent index and a bent
+middle fingertip give much the same values, and the pooled z barely tells them apart.
+Angles use the cosine of the two directions (no cross products), and r lives in a narrow dimension
+(`relative_dim`), the only change of substance for CPU speed.
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ from torch import nn
 from lerobot_opfa.hands.universal import FINGERS
 
 SemanticEmbedding = Literal["linear", "table", "none"]
+SemanticTarget = Literal["features", "attention"]
 MAX_SEGMENTS = 8
 
 
@@ -119,10 +124,16 @@ class GeometricTransformer(nn.Module):
         sigma_d: float,
         semantic: SemanticEmbedding,
         relative_dim: int = 32,
+        semantic_target: SemanticTarget = "features",
     ):
         super().__init__()
+        if semantic_target not in ("features", "attention"):
+            raise ValueError(f"semantic_target must be 'features' or 'attention', got '{semantic_target}'")
+        self.semantic_target = semantic_target
         self.structure = GeometricStructureEmbedding(relative_dim, sigma_d)
-        self.semantic = SemanticLabelEmbedding(relative_dim, semantic)
+        self.semantic = SemanticLabelEmbedding(
+            dim if semantic_target == "features" else relative_dim, semantic
+        )
         self.layers = nn.ModuleList(
             RelativeSelfAttentionLayer(dim, heads, relative_dim) for _ in range(layers)
         )
@@ -131,7 +142,9 @@ class GeometricTransformer(nn.Module):
         """features (B, N, D), points (B, N, 3), labels (B, N, 2) -> (B, N, D)."""
         relative = self.structure(points)
         semantic = self.semantic(labels)
-        if semantic is not None:
+        if semantic is not None and self.semantic_target == "features":
+            features = features + semantic
+        elif semantic is not None:
             relative = relative + semantic.unsqueeze(1)  # r_ij = r^p_ij + r^s_j
         for layer in self.layers:
             features = layer(features, relative)
