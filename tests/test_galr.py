@@ -40,8 +40,8 @@ def _joints(hand: str, n: int, seed: int = 0) -> torch.Tensor:
 
 @pytest.mark.parametrize(
     "overrides",
-    [{}, {"semantic_embedding": "table"}, {"semantic_embedding": "none"}, {"encoder": "pointnet"},
-     {"decoder": "per_embodiment"}],
+    [{}, {"semantic_embedding": "table"}, {"semantic_embedding": "none"}, {"semantic_target": "attention"},
+     {"encoder": "pointnet"}, {"decoder": "per_embodiment"}],
 )  # fmt: skip
 def test_shapes_for_every_ablation(overrides):
     galr = tiny_galr(**overrides)
@@ -52,6 +52,36 @@ def test_shapes_for_every_ablation(overrides):
         model = load_hand(hand)
         assert q.shape == (3, model.dof)
         assert (q >= model.lower).all() and (q <= model.upper).all()
+
+
+@pytest.mark.parametrize("target", ["features", "attention"])
+def test_semantic_labels_reach_the_superpoint_values_only_as_features(target):
+    """Two superpoints with the same geometry and attention but different finger labels: with `features`
+    their outputs differ, so pooling keeps which finger moved; with `attention` they stay the same."""
+    transformer = tiny_galr(semantic_target=target).encoder.transformer
+    points = torch.tensor([[[0.0, 0.0, 0.0], [0.0, 0.0, 0.02]]])
+    features = torch.ones(1, 2, 32)
+    labels = torch.tensor([[[2, 2], [3, 2]]])  # index and middle fingertip
+    out = transformer(features, points, labels)
+    assert out.shape == (1, 2, 32)
+    if target == "features":
+        assert (out[0, 0] - out[0, 1]).abs().max() > 1e-3
+    else:
+        assert torch.allclose(out[0, 0], out[0, 1])
+
+
+def test_checkpoint_config_without_semantic_target_loads_as_attention(tmp_path):
+    galr = tiny_galr(semantic_target="attention")
+    galr.save_pretrained(tmp_path)
+    config = json.loads((tmp_path / "config.json").read_text())
+    del config["semantic_target"]  # as written before the field existed
+    (tmp_path / "config.json").write_text(json.dumps(config))
+    loaded = Galr.from_pretrained(tmp_path).eval()
+    assert loaded.config.semantic_target == "attention"
+    q = _joints("leap", 2)
+    assert torch.equal(galr.encode_joints("leap", q), loaded.encode_joints("leap", q))
+    with pytest.raises(ValueError, match="semantic_target must be"):
+        tiny_galr(semantic_target="values")
 
 
 def test_kernel_points_deterministic_and_saved(tmp_path):
