@@ -1,6 +1,8 @@
 """GaLR ablations at an equal step budget: the default (KPConv + geometric transformer, linear semantic
-embedding, unified decoder) against no semantic embedding, DP3's PointNet encoder, and per-embodiment
-decoders. Each is pretrained with the same CLI and evaluated with `galr eval`.
+embedding added to the superpoint features, unified decoder) against the semantic embedding in the
+attention only, no semantic embedding, DP3's PointNet encoder, and per-embodiment decoders. Each is
+pretrained with the same CLI (equal batch shares, as the first ablation runs had) and evaluated with
+`galr eval`.
 
     .venv/bin/python benchmarks/galr_ablations.py [--steps 600] [--output-dir outputs/galr_ablations]
 
@@ -13,6 +15,7 @@ import argparse
 import json
 import subprocess
 import sys
+import textwrap
 from pathlib import Path
 
 import matplotlib
@@ -21,11 +24,15 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"
-VARIANTS = {
-    "default": [],
-    "no semantic embedding": ["semantic_embedding=none"],
-    "PointNet encoder (DP3)": ["encoder=pointnet"],
-    "per-embodiment decoders": ["decoder=per_embodiment"],
+VARIANTS = {  # name: (run directory, --model overrides)
+    "default": ("default", []),
+    "semantic embedding in attention": ("semantic_attention", ["semantic_target=attention"]),
+    "no semantic embedding": ("no_semantic", ["semantic_embedding=none"]),
+    "PointNet encoder (DP3)": ("pointnet", ["encoder=pointnet"]),
+    "per-embodiment decoders, semantic embedding in attention": (
+        "per_embodiment_attention",
+        ["decoder=per_embodiment", "semantic_target=attention"],
+    ),
 }
 
 
@@ -42,13 +49,14 @@ def main() -> None:
     args = parser.parse_args()
 
     rows = {}
-    for name, overrides in VARIANTS.items():
-        run = args.output_dir / name.split(" ")[0].lower().replace("-", "_")
+    for name, (directory, overrides) in VARIANTS.items():
+        run = args.output_dir / directory
         report = run / "eval.json"
         if not (run / "model.safetensors").is_file():
             resume = ["--resume"] if (run / "checkpoints").is_dir() else []
             _cli("galr", "pretrain", "--hands", "all", "--steps", str(args.steps), "--batch-size",
-                 str(args.batch_size), "--validate-every", str(args.steps), "--output-dir", str(run), *resume,
+                 str(args.batch_size), "--shares", "even", "--validate-every", str(args.steps),
+                 "--output-dir", str(run), *resume,
                  *(["--model", *overrides] if overrides else []))  # fmt: skip
         if not report.is_file():
             _cli(
@@ -69,10 +77,11 @@ def main() -> None:
             {"command": command, "steps": args.steps, "batch_size": args.batch_size, "runs": rows}, indent=2
         )
     )
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
     for ax, key, label in zip(axes, ("joint_rmse_deg", "fingertip_error_mm"),
                               ("joint RMSE (deg)", "fingertip error (mm)"), strict=True):  # fmt: skip
-        ax.bar([n.replace(" ", "\n", 1) for n in rows], [r[key] for r in rows.values()], color="#1f77b4")
+        ax.bar([textwrap.fill(n, 16) for n in rows], [r[key] for r in rows.values()], color="#1f77b4")
+        ax.tick_params(axis="x", labelsize=7)
         ax.set_ylabel(f"{label}, mean over 11 hands")
     fig.suptitle(f"GaLR ablations, {args.steps} steps x batch {args.batch_size} each, CPU")
     fig.tight_layout()
