@@ -69,6 +69,10 @@ class GalrConfig:
             raise ValueError(f"encoder must be 'kpconv_transformer' or 'pointnet', got '{self.encoder}'")
         if self.decoder not in ("unified", "per_embodiment"):
             raise ValueError(f"decoder must be 'unified' or 'per_embodiment', got '{self.decoder}'")
+        if self.semantic_target not in ("features", "attention"):
+            raise ValueError(
+                f"semantic_target must be 'features' or 'attention', got '{self.semantic_target}'"
+            )
         if list(self.universal_joints) != list(UNIVERSAL_JOINT_NAMES):
             raise ValueError(
                 "this GaLR was trained on another universal joint table than this version of lerobot-opfa "

@@ -127,8 +127,6 @@ class GeometricTransformer(nn.Module):
         semantic_target: SemanticTarget = "features",
     ):
         super().__init__()
-        if semantic_target not in ("features", "attention"):
-            raise ValueError(f"semantic_target must be 'features' or 'attention', got '{semantic_target}'")
         self.semantic_target = semantic_target
         self.structure = GeometricStructureEmbedding(relative_dim, sigma_d)
         self.semantic = SemanticLabelEmbedding(
