@@ -60,10 +60,10 @@ def test_semantic_labels_reach_the_superpoint_values_only_as_features(target):
     their outputs differ, so pooling keeps which finger moved; with `attention` they stay the same."""
     transformer = tiny_galr(semantic_target=target).encoder.transformer
     points = torch.tensor([[[0.0, 0.0, 0.0], [0.0, 0.0, 0.02]]])
-    features = torch.ones(1, 2, 32)
+    width = TINY["transformer_dim"]
     labels = torch.tensor([[[2, 2], [3, 2]]])  # index and middle fingertip
-    out = transformer(features, points, labels)
-    assert out.shape == (1, 2, 32)
+    out = transformer(torch.ones(1, 2, width), points, labels)
+    assert out.shape == (1, 2, width)
     if target == "features":
         assert (out[0, 0] - out[0, 1]).abs().max() > 1e-3
     else:

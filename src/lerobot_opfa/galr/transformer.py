@@ -140,10 +140,11 @@ class GeometricTransformer(nn.Module):
         """features (B, N, D), points (B, N, 3), labels (B, N, 2) -> (B, N, D)."""
         relative = self.structure(points)
         semantic = self.semantic(labels)
-        if semantic is not None and self.semantic_target == "features":
-            features = features + semantic
-        elif semantic is not None:
-            relative = relative + semantic.unsqueeze(1)  # r_ij = r^p_ij + r^s_j
+        if semantic is not None:
+            if self.semantic_target == "features":
+                features = features + semantic
+            else:
+                relative = relative + semantic.unsqueeze(1)  # r_ij = r^p_ij + r^s_j
         for layer in self.layers:
             features = layer(features, relative)
         return features
