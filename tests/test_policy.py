@@ -4,6 +4,7 @@ Hub round trip, clear errors, and `lerobot-train` / `lerobot-eval` as the user r
 from __future__ import annotations
 
 import json
+import logging
 import os
 import shutil
 import subprocess
@@ -13,11 +14,13 @@ from pathlib import Path
 import pytest
 import torch
 import torch.nn.functional as F  # noqa: N812
+from lerobot.configs import NormalizationMode
 from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot.datasets.dataset_metadata import LeRobotDatasetMetadata
 from lerobot.datasets.factory import resolve_delta_timestamps
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from lerobot.policies.factory import make_pre_post_processors
+from lerobot.processor import TransitionKey, create_transition
 from lerobot.processor.converters import batch_to_transition, transition_to_batch
 from lerobot.utils.constants import OBS_ENV_STATE
 from lerobot.utils.feature_utils import dataset_to_policy_features
@@ -33,6 +36,7 @@ from lerobot_opfa.hands import load_hand
 from lerobot_opfa.policy.configuration_opfa import OBS_EMBODIMENT, OBS_JOINT_MASK, OBS_POINTCLOUD, OpfaConfig
 from lerobot_opfa.policy.joint_steps import OpfaEncodeJointsStep
 from lerobot_opfa.policy.modeling_opfa import OpfaPolicy, policy_width
+from lerobot_opfa.policy.normalization import OpfaNormalizeStep, OpfaUnnormalizeStep
 from lerobot_opfa.policy.processor_opfa import make_opfa_pre_post_processors
 from lerobot_opfa.policy.stock_io import convert_policy_io
 
@@ -292,6 +296,88 @@ def test_cached_and_online_latents_agree(data):
     assert from_cache[OBS_EMBODIMENT].tolist() == [2, 2] and online[OBS_EMBODIMENT].tolist() == [0, 0]
     for key in ("observation.state", "action"):
         assert torch.allclose(from_cache[key], online[key], atol=1e-5)
+
+
+NORMALIZATION_CASES = [
+    (space, dataset, mode, wrist)
+    for space, dataset in (
+        ("raw", "inspire"),
+        ("per_embodiment", "merged"),
+        ("galr", "merged"),
+        ("galr", "leap"),
+    )
+    for mode in (NormalizationMode.MIN_MAX, NormalizationMode.MEAN_STD)
+    for wrist in ("per_embodiment", "shared")
+]  # the synthetic demos hold wrist_pitch and wrist_roll at exactly 0 (constant state and action entries)
+PITCH, ROLL = 4, 5
+
+
+def _steps(pre, post):
+    normalize = next(s for s in pre.steps if isinstance(s, OpfaNormalizeStep))
+    return normalize, next(s for s in post.steps if isinstance(s, OpfaUnnormalizeStep))
+
+
+@pytest.mark.parametrize(("space", "dataset", "mode", "wrist"), NORMALIZATION_CASES)
+def test_noise_on_a_constant_state_entry_is_not_amplified(data, space, dataset, mode, wrist):
+    """0.57 deg of wrist tilt and of every joint (an entry the demos hold still, real-robot noise) moves the
+    normalised state by about one unit, not by thousands."""
+    _, pre, _, frames = make_policy(
+        data, dataset, action_space=space, normalization=mode, wrist_normalization=wrist
+    )
+    batch = batch_of(frames, [3, 17])
+    noisy = {k: v.clone() if isinstance(v, torch.Tensor) else v for k, v in batch.items()}
+    state = noisy["observation.state"]
+    state[..., PITCH] += 0.01
+    state[..., ROLL] -= 0.01
+    joints = slice(6, 6 + 28) if dataset == "merged" else slice(6, None)
+    state[..., joints] += 0.01 * (state[..., joints] != 0)  # present joints only (absent ones read 0)
+    if dataset == "merged":  # without the cached z, so the noisy joints are encoded
+        noisy["observation.state"] = state[..., : 6 + 28]
+        batch["observation.state"] = batch["observation.state"][..., : 6 + 28]
+    clean, moved = pre(batch)["observation.state"], pre(noisy)["observation.state"]
+    change = (moved - clean).abs()
+    assert change[..., [PITCH, ROLL]].max() <= 1.0 + 1e-4
+    assert change.max() < 5.0, f"largest normalised change {change.max():.2f}"
+
+
+@pytest.mark.parametrize(("space", "dataset", "mode", "wrist"), NORMALIZATION_CASES)
+def test_constant_action_entries_come_out_constant_and_the_rest_round_trips(
+    data, space, dataset, mode, wrist
+):
+    _, pre, post, frames = make_policy(
+        data, dataset, action_space=space, normalization=mode, wrist_normalization=wrist
+    )
+    normalize, unnormalize = _steps(pre, post)
+    transition = batch_to_transition(batch_of(frames, list(range(0, len(frames), 7))))
+    for step in pre.steps[: pre.steps.index(normalize)]:
+        transition = step(transition)
+    action = transition[TransitionKey.ACTION]
+    normalised = normalize(transition)[TransitionKey.ACTION]
+    back = unnormalize(create_transition(action=normalised))[TransitionKey.ACTION]
+    assert torch.allclose(back, action, atol=1e-5), "round trip of the demos' own actions"
+    wild = torch.randn_like(normalised) * 5  # a denoiser far off, even outside DDIM's clip range
+    out = unnormalize(create_transition(action=wild))[TransitionKey.ACTION]
+    assert (out[..., [PITCH, ROLL]] == 0).all(), "the demos' constant wrist tilt is emitted as that constant"
+    ids = transition[TransitionKey.OBSERVATION][OBS_EMBODIMENT]
+    low, high = unnormalize.tables["action.low"][ids], unnormalize.tables["action.high"][ids]
+    assert ((out >= low[:, None]) & (out <= high[:, None])).all(), "actions stay in their training range"
+
+
+def test_state_guard_warns_once_per_episode_and_refuses_nan(data, caplog):
+    policy, pre, post, _ = make_policy(data, "inspire", action_space="raw")
+    observation = native_observation("inspire", torch.zeros(32 * 3))
+    observation["observation.state"][PITCH] = 0.3  # 30 noise floors off a wrist axis the demos never tilt
+    with caplog.at_level(logging.WARNING, logger="lerobot_opfa.policy.normalization"):
+        for _ in range(3):
+            pre(dict(observation))
+        pre.reset()
+        pre(dict(observation))
+    warnings = [r.getMessage() for r in caplog.records if "training range" in r.getMessage()]
+    assert len(warnings) == 2, warnings
+    assert "'wrist_pitch' of hand 'inspire' is 0.3" in warnings[0] and "[0, 0]" in warnings[0]
+    observation["observation.state"][8] = float("nan")
+    with pytest.raises(ValueError, match=r"not finite.* in index_mcp_flex:"):
+        pre(dict(observation))
 
 
 @pytest.mark.parametrize(

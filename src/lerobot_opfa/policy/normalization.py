@@ -1,14 +1,25 @@
-"""Normalisation that is right per embodiment: one affine map per hand for the wrist and joint entries,
-one shared map for z (a space all hands share).
+"""Normalisation that is right per embodiment and safe in closed loop.
 
+One affine map per hand for the wrist and joint entries, one shared map for z (a space all hands share):
 LeRobot's normaliser keeps one set of statistics per feature, and pooled over hands it would squash a
 gripper's 4 cm aperture next to a hand's wrist range, and mix absent universal joints (zeros) into present
-ones. Here each feature has tables `shift`, `scale` of shape (E, D), row e for embodiment e:
-x_norm = (x - shift[e]) / scale[e]. MIN_MAX puts the data in [-1, 1] (DDIM clips samples to that range).
+ones. Each feature has tables of shape (E, D), row e for embodiment e: `shift`, `scale` with
+x_norm = (x - shift[e]) / scale[e], and the training range `low`, `high`.
+
+Two rules keep a rollout from running away:
+- a scale is never below the entry's noise floor (what physical noise of `WRIST_NOISE`, `REVOLUTE_NOISE`,
+  `PRISMATIC_NOISE` moves it by): an entry that is near-constant in the demos (a wrist axis holding still)
+  is not amplified into a huge input when the robot jitters;
+- actions come out clamped to their training range, so an entry that is constant in the demos comes out
+  as that constant, whatever the denoiser outputs for it.
+The preprocessor also refuses non-finite states and warns, once per episode and entry, about states far
+outside the training range (the policy has never seen them).
 """
 
 from __future__ import annotations
 
+import logging
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -20,52 +31,101 @@ from lerobot.utils.constants import ACTION, OBS_STATE
 from lerobot_opfa.policy.configuration_opfa import OBS_EMBODIMENT
 from lerobot_opfa.policy.joint_steps import embodiment_ids
 
+logger = logging.getLogger(__name__)
+
+WRIST_NOISE = 0.01
+"""Noise of a wrist entry in SI units: 1 cm of position, 0.57 deg of rotation."""
+REVOLUTE_NOISE = 0.01
+"""Noise of a revolute hand joint (rad): 0.57 deg."""
+PRISMATIC_NOISE = 0.001
+"""Noise of a prismatic hand joint (m): 1 mm of a gripper jaw's few centimetres."""
 MIN_SCALE = 1e-6
-"""Below this spread an entry is constant for the hand (absent joints, a fixed wrist axis): map it to 0."""
+"""Below this scale an entry never moves, not even by noise (a universal joint the hand lacks): scale 1."""
+NOISE_SAMPLES = 512
+"""Frames the noise floor of the policy space is estimated on."""
+GUARD_WIDTHS = 10.0
+"""A state entry this many range-widths outside its training range gets a warning."""
 
 
-def affine_tables(
-    values: torch.Tensor, ids: torch.Tensor, n_embodiments: int, mode: NormalizationMode, pooled: torch.Tensor
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """(shift, scale), each (E, D), from policy-space rows `values` (F, D) with embodiment `ids` (F,).
+def noise_floor(
+    encode: Callable[[torch.Tensor, torch.Tensor], torch.Tensor],
+    rows: torch.Tensor,
+    ids: torch.Tensor,
+    raw_noise: torch.Tensor,
+    n_embodiments: int,
+    pooled: torch.Tensor,
+) -> torch.Tensor:
+    """(E, D): root-mean-square change of each policy-space entry when every raw entry of `rows` (F, R)
+    moves by its physical noise `raw_noise` (R,) with a random sign. `encode(rows, ids)` maps raw rows to
+    the policy space, so the floor of z is what joint noise does to the GaLR latent."""
+    generator = torch.Generator().manual_seed(0)
+    keep = torch.randperm(len(rows), generator=generator)[:NOISE_SAMPLES]
+    rows, ids = rows[keep], ids[keep]
+    signs = torch.randint(0, 2, rows.shape, generator=generator).to(rows) * 2 - 1
+    delta = encode(rows + signs * raw_noise, ids) - encode(rows, ids)
+    return _per_embodiment(delta, ids, n_embodiments, pooled, lambda d: d.pow(2).mean(0).sqrt(), 0.0)
 
-    Entries where `pooled` (D,) is True use statistics over all rows (the same in every row of the table).
-    """
-    dim = values.shape[-1]
-    shift, scale = torch.zeros(n_embodiments, dim), torch.ones(n_embodiments, dim)
-    if mode is NormalizationMode.IDENTITY:
-        return shift, scale
-    if mode not in (NormalizationMode.MIN_MAX, NormalizationMode.MEAN_STD):
-        raise ValueError(f"opfa normalises with MIN_MAX, MEAN_STD or IDENTITY, not {mode}")
 
-    def stats(rows: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        if mode is NormalizationMode.MIN_MAX:
-            low, high = rows.min(dim=0).values, rows.max(dim=0).values
-            return (high + low) / 2, (high - low) / 2
-        return rows.mean(dim=0), rows.std(dim=0, unbiased=False)
-
-    all_shift, all_scale = stats(values)
+def _per_embodiment(
+    values: torch.Tensor,
+    ids: torch.Tensor,
+    n_embodiments: int,
+    pooled: torch.Tensor,
+    reduce: Callable[[torch.Tensor], torch.Tensor],
+    empty: float,
+) -> torch.Tensor:
+    """(E, D) table of `reduce` over each embodiment's rows; `pooled` entries over all rows; `empty`
+    for an embodiment without rows."""
+    table = torch.full((n_embodiments, values.shape[-1]), empty, dtype=values.dtype)
+    everyone = reduce(values)
     for e in range(n_embodiments):
         rows = values[ids == e]
         if len(rows):
-            shift[e], scale[e] = stats(rows)
-        shift[e, pooled], scale[e, pooled] = all_shift[pooled], all_scale[pooled]
-    constant = scale < MIN_SCALE
-    scale[constant] = 1.0
-    return shift, scale
+            table[e] = reduce(rows)
+        table[e, pooled] = everyone[pooled]
+    return table
+
+
+def affine_tables(
+    values: torch.Tensor,
+    ids: torch.Tensor,
+    n_embodiments: int,
+    mode: NormalizationMode,
+    pooled: torch.Tensor,
+    floor: torch.Tensor,
+) -> dict[str, torch.Tensor]:
+    """`shift`, `scale`, `low`, `high`, each (E, D), from policy-space rows `values` (F, D) with embodiment
+    `ids` (F,) and noise floors `floor` (E, D). Entries where `pooled` (D,) is True use statistics over
+    all rows (the same in every row of the table)."""
+    if mode not in (NormalizationMode.MIN_MAX, NormalizationMode.MEAN_STD, NormalizationMode.IDENTITY):
+        raise ValueError(f"opfa normalises with MIN_MAX, MEAN_STD or IDENTITY, not {mode}")
+    table = dict(n_embodiments=n_embodiments, pooled=pooled)
+    low = _per_embodiment(values, ids, **table, reduce=lambda r: r.min(0).values, empty=-torch.inf)
+    high = _per_embodiment(values, ids, **table, reduce=lambda r: r.max(0).values, empty=torch.inf)
+    if mode is NormalizationMode.IDENTITY:
+        shift, scale = torch.zeros_like(low), torch.ones_like(low)
+    elif mode is NormalizationMode.MIN_MAX:
+        known = low.isfinite()
+        shift = torch.where(known, (high + low) / 2, 0.0)
+        scale = torch.where(known, (high - low) / 2, 1.0).maximum(floor)
+    else:
+        shift = _per_embodiment(values, ids, **table, reduce=lambda r: r.mean(0), empty=0.0)
+        spread = _per_embodiment(values, ids, **table, reduce=lambda r: r.std(0, unbiased=False), empty=1.0)
+        scale = spread.maximum(floor)
+    scale[scale < MIN_SCALE] = 1.0
+    return {"shift": shift, "scale": scale, "low": low, "high": high}
 
 
 @dataclass
 class _EmbodimentAffine:
     keys: list[str] = field(default_factory=lambda: [OBS_STATE, ACTION])
     tables: dict[str, torch.Tensor] = field(default_factory=dict, repr=False)
-    """`{key}.shift` and `{key}.scale`, (E, D) each; saved as the step's state."""
+    """`{key}.shift`, `{key}.scale`, `{key}.low`, `{key}.high`, (E, D) each; saved as the step's state."""
 
-    def _apply(self, key: str, x: torch.Tensor, ids: torch.Tensor, inverse: bool) -> torch.Tensor:
+    def _table(self, key: str, name: str, x: torch.Tensor, ids: torch.Tensor) -> torch.Tensor:
+        """Rows `ids` of a table, shaped to broadcast against x (B, [T], D)."""
         shape = (len(ids), *([1] * (x.dim() - 2)), x.shape[-1])
-        shift = self.tables[f"{key}.shift"].to(x.device)[ids].view(shape)
-        scale = self.tables[f"{key}.scale"].to(x.device)[ids].view(shape)
-        return x * scale + shift if inverse else (x - shift) / scale
+        return self.tables[f"{key}.{name}"].to(x.device)[ids].view(shape)
 
     def state_dict(self) -> dict[str, torch.Tensor]:
         return dict(self.tables)
@@ -80,28 +140,76 @@ class _EmbodimentAffine:
 @ProcessorStepRegistry.register("opfa_normalize")
 @dataclass
 class OpfaNormalizeStep(_EmbodimentAffine, ProcessorStep):
-    """Normalises `observation.state` and `action` by the embodiment of each batch row."""
+    """Normalises `observation.state` and `action` by the embodiment of each batch row, after checking
+    that the state is finite and warning when it is far outside what the policy was trained on."""
+
+    names: list[str] = field(default_factory=list)
+    """Policy-space entry names (wrist, then joints or z), for the messages."""
+    embodiments: list[str] = field(default_factory=list)
+
+    def __post_init__(self):
+        self._warned: set[tuple[int, int]] = set()
 
     def __call__(self, transition):
         new = transition.copy()
         obs = dict(new[TransitionKey.OBSERVATION])
         ids = obs[OBS_EMBODIMENT]
         if OBS_STATE in self.keys:
-            obs[OBS_STATE] = self._apply(OBS_STATE, obs[OBS_STATE], ids, inverse=False)
+            self._check_state(obs[OBS_STATE], ids)
+            obs[OBS_STATE] = self._normalize(OBS_STATE, obs[OBS_STATE], ids)
         action = new.get(TransitionKey.ACTION)
         if ACTION in self.keys and isinstance(action, torch.Tensor):
-            new[TransitionKey.ACTION] = self._apply(ACTION, action, ids, inverse=False)
+            new[TransitionKey.ACTION] = self._normalize(ACTION, action, ids)
         new[TransitionKey.OBSERVATION] = obs
         return new
 
+    def _normalize(self, key: str, x: torch.Tensor, ids: torch.Tensor) -> torch.Tensor:
+        return (x - self._table(key, "shift", x, ids)) / self._table(key, "scale", x, ids)
+
+    def _check_state(self, state: torch.Tensor, ids: torch.Tensor) -> None:
+        bad = ~state.isfinite()
+        if bad.any():
+            entries = sorted({self._name(i) for i in bad.nonzero()[:, -1].tolist()})
+            raise ValueError(
+                f"{OBS_STATE} is not finite (NaN or inf) in {', '.join(entries)}: check the robot's readings "
+                "(z entries are the GaLR latent of the hand's joints)"
+            )
+        low, high = self._table(OBS_STATE, "low", state, ids), self._table(OBS_STATE, "high", state, ids)
+        width = (high - low).maximum(self._table(OBS_STATE, "scale", state, ids))
+        widths_out = ((low - state).maximum(state - high) / width).flatten(0, -2)
+        rows = ids.repeat_interleave(len(widths_out) // len(ids))
+        for row, entry in (widths_out > GUARD_WIDTHS).nonzero().tolist():
+            hand = int(rows[row])
+            if (hand, entry) in self._warned:
+                continue
+            self._warned.add((hand, entry))
+            flat = state.flatten(0, -2)
+            logger.warning(
+                "%s entry '%s' of hand '%s' is %.4g, %.0f range-widths outside its training range "
+                "[%.4g, %.4g]: the policy has not seen such inputs (the robot has drifted out of the data)",
+                OBS_STATE, self._name(entry), self._hand(hand), flat[row, entry],
+                widths_out[row, entry], low.flatten(0, -2)[row, entry], high.flatten(0, -2)[row, entry],
+            )  # fmt: skip
+
+    def _name(self, entry: int) -> str:
+        return self.names[entry] if entry < len(self.names) else f"#{entry}"
+
+    def _hand(self, index: int) -> str:
+        return self.embodiments[index] if index < len(self.embodiments) else f"#{index}"
+
+    def reset(self) -> None:
+        """A new episode: its out-of-range entries are reported again."""
+        self._warned.clear()
+
     def get_config(self) -> dict[str, Any]:
-        return {"keys": list(self.keys)}
+        return {"keys": list(self.keys), "names": list(self.names), "embodiments": list(self.embodiments)}
 
 
 @ProcessorStepRegistry.register("opfa_unnormalize")
 @dataclass
 class OpfaUnnormalizeStep(_EmbodimentAffine, ProcessorStep):
-    """Maps policy actions back, using the embodiments its linked preprocessor saw."""
+    """Maps policy actions back, using the embodiments its linked preprocessor saw, into the actions'
+    training range (a constant action entry comes out as that constant)."""
 
     link: str = ""
 
@@ -110,7 +218,9 @@ class OpfaUnnormalizeStep(_EmbodimentAffine, ProcessorStep):
         action = new[TransitionKey.ACTION]
         n_embodiments = len(self.tables[f"{ACTION}.shift"])
         ids = embodiment_ids(self.link, len(action), n_embodiments).to(action.device)
-        new[TransitionKey.ACTION] = self._apply(ACTION, action, ids, inverse=True)
+        x = action * self._table(ACTION, "scale", action, ids) + self._table(ACTION, "shift", action, ids)
+        low, high = self._table(ACTION, "low", action, ids), self._table(ACTION, "high", action, ids)
+        new[TransitionKey.ACTION] = x.clamp(low, high)
         return new
 
     def get_config(self) -> dict[str, Any]:

@@ -29,13 +29,22 @@ from lerobot.processor.factory import make_policy_processor_pipelines
 from lerobot.utils.constants import ACTION, OBS_STATE
 
 from lerobot_opfa.datasets.io import read_columns
-from lerobot_opfa.datasets.layout import DatasetLayout, read_layout
+from lerobot_opfa.datasets.layout import DatasetLayout, latent_names, read_layout
 from lerobot_opfa.galr.model import Galr
 from lerobot_opfa.hands.registry import builtin_hands
+from lerobot_opfa.hands.universal import UNIVERSAL_INDEX, UNIVERSAL_JOINT_NAMES, UNIVERSAL_JOINTS
 from lerobot_opfa.policy.configuration_opfa import OBS_EMBODIMENT, OpfaConfig
 from lerobot_opfa.policy.galr_ref import galr_fingerprint, known_hand_refs, load_galr
 from lerobot_opfa.policy.joint_steps import OpfaDecodeJointsStep, OpfaEncodeJointsStep, PointCloudBatchStep
-from lerobot_opfa.policy.normalization import OpfaNormalizeStep, OpfaUnnormalizeStep, affine_tables
+from lerobot_opfa.policy.normalization import (
+    PRISMATIC_NOISE,
+    REVOLUTE_NOISE,
+    WRIST_NOISE,
+    OpfaNormalizeStep,
+    OpfaUnnormalizeStep,
+    affine_tables,
+    noise_floor,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -94,6 +103,24 @@ def _hand_refs(embodiments: list[str], galr: Galr | None) -> list[str]:
     return refs
 
 
+def _raw_noise(wrist_dim: int, universal_names: list[str]) -> torch.Tensor:
+    """Physical noise of each raw state column: the wrist entries, then joints by kind."""
+    joints = [UNIVERSAL_JOINTS[UNIVERSAL_INDEX[u]].kind for u in universal_names]
+    noise = [PRISMATIC_NOISE if kind == "prismatic" else REVOLUTE_NOISE for kind in joints]
+    return torch.tensor([WRIST_NOISE] * wrist_dim + noise)
+
+
+def policy_space_names(config: OpfaConfig, encoder: OpfaEncodeJointsStep) -> list[str]:
+    """Names of the policy's state/action entries: the wrist's, then z's, the hand's or universal joints."""
+    if config.action_space == "galr":
+        rest = latent_names(config.latent_dim)
+    elif config.action_space == "raw":
+        rest = encoder.model(0).joint_names
+    else:
+        rest = list(UNIVERSAL_JOINT_NAMES)
+    return [*config.wrist_names, *rest]
+
+
 def _policy_space_tables(
     config: OpfaConfig, layout: DatasetLayout, encoder: OpfaEncodeJointsStep, root: Path
 ) -> dict[str, torch.Tensor]:
@@ -104,24 +131,41 @@ def _policy_space_tables(
     if subsample and n > STATS_MAX_ENCODED_FRAMES:
         keep = torch.randperm(n, generator=torch.Generator().manual_seed(0))[:STATS_MAX_ENCODED_FRAMES]
         frames = {k: v[keep] for k, v in frames.items()}
-    observation = {OBS_STATE: frames[OBS_STATE]}
-    if OBS_EMBODIMENT in frames:
-        observation[OBS_EMBODIMENT] = frames[OBS_EMBODIMENT].long()
-    out = encoder(create_transition(observation=observation, action=frames[ACTION]))
+
+    def encode(rows: torch.Tensor, ids: torch.Tensor | None, action: torch.Tensor | None = None):
+        observation = {OBS_STATE: rows} | ({OBS_EMBODIMENT: ids} if layout.kind == "merged" else {})
+        return encoder(create_transition(observation=observation, action=action))
+
+    ids = frames[OBS_EMBODIMENT].long() if layout.kind == "merged" else None
+    out = encode(frames[OBS_STATE], ids, frames[ACTION])
     ids = out[TransitionKey.OBSERVATION][OBS_EMBODIMENT]
-    encoder.last_ids = None
     wrist = len(config.wrist_names)
+    pooled = torch.zeros(out[TransitionKey.ACTION].shape[-1], dtype=torch.bool)
+    pooled[:wrist] = config.wrist_normalization == "shared"
+    pooled[wrist:] = config.action_space == "galr"
+    if layout.kind == "merged":  # the joints only (cached z would not move with them)
+        raw = frames[OBS_STATE][:, : wrist + len(UNIVERSAL_JOINT_NAMES)]
+        universal = list(UNIVERSAL_JOINT_NAMES)
+    else:
+        raw = frames[OBS_STATE]
+        spec = encoder.model(0).spec
+        universal = [spec.joints[j] for j in layout.joint_names]
+    floor = noise_floor(
+        lambda rows, row_ids: encode(rows, row_ids)[TransitionKey.OBSERVATION][OBS_STATE],
+        raw,
+        ids,
+        _raw_noise(wrist, universal),
+        len(config.embodiments),
+        pooled,
+    )
+    encoder.last_ids = None
     tables = {}
     for key, values in (
         (OBS_STATE, out[TransitionKey.OBSERVATION][OBS_STATE]),
         (ACTION, out[TransitionKey.ACTION]),
     ):
-        pooled = torch.zeros(values.shape[-1], dtype=torch.bool)
-        pooled[:wrist] = config.wrist_normalization == "shared"
-        pooled[wrist:] = config.action_space == "galr"
-        tables[f"{key}.shift"], tables[f"{key}.scale"] = affine_tables(
-            values, ids, len(config.embodiments), config.normalization, pooled
-        )
+        stats = affine_tables(values, ids, len(config.embodiments), config.normalization, pooled, floor)
+        tables |= {f"{key}.{name}": table for name, table in stats.items()}
     return tables
 
 
@@ -169,7 +213,11 @@ def make_opfa_pre_post_processors(
             PointCloudBatchStep(),
             DeviceProcessorStep(device=config.device),
             encoder,
-            OpfaNormalizeStep(tables=tables),
+            OpfaNormalizeStep(
+                tables=tables,
+                names=policy_space_names(config, encoder),
+                embodiments=list(config.embodiments),
+            ),
             NormalizerProcessorStep(features={}, norm_map=config.normalization_mapping),
         ],
         output_steps=[
