@@ -143,3 +143,22 @@ def test_gym_ids_and_config():
     obs, _ = vec.reset(seed=[0, 1])
     assert obs["pointcloud"].shape == (2, 96)
     vec.close()
+
+
+def test_demos_hold_the_success_for_a_few_frames():
+    """Demos go on past their first success for HOLD_STEPS frames, the expert holding its last target, so
+    chunks that start in the final approach exist in training; success is still decided in time."""
+    from lerobot_opfa.envs.demos import HOLD_STEPS, expert_episode
+
+    env = OpfaSimEnv(
+        "press_button", "umi", obs_type="pointcloud_state", pointcloud_source="geometry", n_points=32
+    )
+    until, ok = expert_episode(env, seed=3, region="mid_center", hold=0)
+    held, held_ok = expert_episode(env, seed=3, region="mid_center")
+    assert ok and held_ok and len(held) == len(until) + HOLD_STEPS
+    for a, b in zip(until, held, strict=False):
+        assert np.array_equal(a["observation.state"], b["observation.state"])
+    last = np.stack([f["action"] for f in held[-HOLD_STEPS:]])
+    assert np.ptp(last[:, 2]) < 0.005, "the wrist holds the press height"
+    assert env.task.success(env.scene, env.data), "still pressed after the hold"
+    env.close()

@@ -20,6 +20,11 @@ from lerobot_opfa.envs.regions import parse_regions
 logger = logging.getLogger(__name__)
 
 MAX_ATTEMPTS_PER_EPISODE = 3
+HOLD_STEPS = 8
+"""Frames recorded after an episode first succeeds, the expert holding its last target (the press, the
+lifted can). Without them no training chunk starts in the last approach: LeRobot's sampler skips an
+episode's last `drop_n_last_frames` frames as chunk starts, so a policy that reaches the end of the
+approach a little late has never seen what to do there and starts the approach over."""
 META_FILE = "opfa_demos.json"  # in the dataset's meta/: task, hand, regions and seed of every episode
 
 
@@ -34,12 +39,18 @@ def dataset_features(env: OpfaSimEnv) -> dict:
     }
 
 
-def expert_episode(env: OpfaSimEnv, seed: int, region: str | None = None) -> tuple[list[dict], bool]:
-    """Run the scripted expert for one seeded episode; returns its frames and whether it succeeded."""
+def expert_episode(
+    env: OpfaSimEnv, seed: int, region: str | None = None, hold: int = HOLD_STEPS
+) -> tuple[list[dict], bool]:
+    """Run the scripted expert for one seeded episode; returns its frames (up to its first success, then
+    `hold` more) and whether it succeeded."""
     obs, _ = env.reset(seed=seed, options={"region": region} if region else None)
     expert = ScriptedExpert(env, np.random.default_rng(seed))
-    frames, success = [], False
-    for _ in range(EPISODE_STEPS[env.task.name]):
+    frames, success, held = [], False, 0
+    steps = EPISODE_STEPS[env.task.name]
+    for step in range(steps + hold):
+        if step == steps and not success:
+            break
         action = expert.act()
         frames.append(
             {
@@ -50,10 +61,12 @@ def expert_episode(env: OpfaSimEnv, seed: int, region: str | None = None) -> tup
                 "task": env.task_description,
             }
         )
-        obs, _, terminated, _, info = env.step(action)
-        if terminated:
-            success = bool(info["is_success"])
-            break
+        obs, _, _, _, info = env.step(action)
+        success = success or bool(info["is_success"])
+        if success:
+            if held == hold:
+                break
+            held += 1
     return frames, success
 
 
@@ -113,6 +126,7 @@ def record_demos(
         "regions": region_names,
         "seed": seed,
         "attempts": attempts,
+        "hold_steps": HOLD_STEPS,
     }
     (Path(output_dir) / "meta" / META_FILE).write_text(json.dumps({**meta, "episodes": records}, indent=2))
     return dataset
