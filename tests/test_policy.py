@@ -525,3 +525,20 @@ def test_lerobot_train_then_eval_every_hand(data, tmp_path, monkeypatch):
         lerobot_eval.main()
         info = json.loads((tmp_path / f"eval_{hand}" / "eval_info.json").read_text())
         assert info["overall"]["n_episodes"] == 1
+
+
+@pytest.mark.parametrize(
+    ("space", "dataset"), [("galr", "merged"), ("raw", "inspire"), ("per_embodiment", "merged")]
+)
+def test_wrist_and_hand_each_carry_half_the_loss(data, space, dataset):
+    """However wide the hand part (64 z entries, 6 joints, the universal table), the wrist keeps half the
+    loss; under `per_embodiment` a hand's absent joints carry none."""
+    policy, *_ = make_policy(data, dataset, action_space=space)
+    weights, wrist = policy.loss_weights, len(policy.config.wrist_names)
+    assert torch.allclose(weights[:, :wrist].sum(-1), torch.tensor(0.5))
+    assert torch.allclose(weights[:, wrist:].sum(-1), torch.tensor(0.5))
+    if space == "per_embodiment":
+        for e, hand in enumerate(policy.config.embodiments):
+            present = torch.zeros(weights.shape[-1] - wrist, dtype=torch.bool)
+            present[load_hand(hand).universal_index] = True
+            assert (weights[e, wrist:][~present] == 0).all() and (weights[e, wrist:][present] > 0).all()

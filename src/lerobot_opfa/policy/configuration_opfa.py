@@ -67,6 +67,8 @@ class OpfaConfig(PreTrainedConfig):
     # DP3 point encoder
     pointcloud_widths: tuple[int, ...] = (64, 128, 256)
     pointcloud_feature_dim: int = 64
+    state_mlp_dims: tuple[int, int] = (64, 64)
+    """DP3's state encoder: hidden and output width of the MLP the state passes before conditioning."""
 
     # FiLM-conditioned 1-D U-Net. DP3 uses 512/1024/2048 (the `paper` experiment scale); this default trains
     # on 2 CPU cores in hours, not days.
@@ -102,6 +104,7 @@ class OpfaConfig(PreTrainedConfig):
         super().__post_init__()
         self.down_dims = tuple(self.down_dims)
         self.pointcloud_widths = tuple(self.pointcloud_widths)
+        self.state_mlp_dims = tuple(self.state_mlp_dims)
         self.optimizer_betas = tuple(self.optimizer_betas)
         for name, value, valid in (
             ("action_space", self.action_space, ACTION_SPACES),

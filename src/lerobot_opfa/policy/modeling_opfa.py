@@ -14,7 +14,7 @@ import torch.nn.functional as F  # noqa: N812
 from lerobot.policies.pretrained import PreTrainedPolicy
 from lerobot.policies.utils import populate_queues
 from lerobot.utils.constants import ACTION, OBS_STATE
-from torch import Tensor
+from torch import Tensor, nn
 
 from lerobot_opfa.galr.pointnet import PointNetEncoder
 from lerobot_opfa.hands.registry import load_hand
@@ -37,6 +37,24 @@ def policy_width(config: OpfaConfig) -> int:
     return len(config.wrist_names) + rest
 
 
+def loss_weights(config: OpfaConfig, width: int) -> Tensor:
+    """(embodiments, width) weights of the action entries in the loss: the wrist and the hand each carry
+    half, spread evenly over their entries (for `per_embodiment`, over the joints the hand has).
+
+    A plain mean over entries lets the hand part outweigh the wrist by its width: 64 z entries against 6
+    wrist entries under `galr`, which then fits the joints and leaves the wrist at the demos' average
+    motion (denoising error of the wrist 10x that of `raw` after the same training)."""
+    n_wrist = len(config.wrist_names)
+    present = torch.ones(len(config.embodiments), width - n_wrist)
+    if config.action_space == "per_embodiment":
+        present.zero_()
+        for e, hand in enumerate(config.embodiments):
+            present[e, load_hand(hand).universal_index] = 1
+    hand_share = 0.5 if n_wrist else 1.0
+    wrist = torch.full((len(config.embodiments), n_wrist), (1 - hand_share) / max(n_wrist, 1))
+    return torch.cat([wrist, hand_share * present / present.sum(-1, keepdim=True)], dim=-1)
+
+
 class OpfaPolicy(PreTrainedPolicy):
     config_class = OpfaConfig
     name = "opfa"
@@ -56,10 +74,15 @@ class OpfaPolicy(PreTrainedPolicy):
         self.point_encoder = PointNetEncoder(
             config.pointcloud_feature_dim, config.pointcloud_widths, in_dim=3
         )
+        # DP3's state encoder. Fed raw into the U-Net's conditioning, the state would pass its Mish first,
+        # which flattens inputs below -0.6 (normalised) to about -0.3: the lower part of every entry's range
+        # (the wrist's last centimetres above a button) would barely reach the network.
+        hidden, out = config.state_mlp_dims
+        self.state_encoder = nn.Sequential(nn.Linear(width, hidden), nn.ReLU(), nn.Linear(hidden, out))
         n_heads = len(config.embodiments) if config.action_space == "per_embodiment" else 1
         self.unet = ConditionalUnet1d(
             action_dim=width,
-            cond_dim=config.n_obs_steps * (config.pointcloud_feature_dim + width),
+            cond_dim=config.n_obs_steps * (config.pointcloud_feature_dim + config.state_mlp_dims[-1]),
             down_dims=config.down_dims,
             kernel=config.kernel_size,
             groups=config.n_groups,
@@ -77,14 +100,7 @@ class OpfaPolicy(PreTrainedPolicy):
             config.prediction_type,
             config.clip_sample_range if config.clip_sample else None,
         )
-        if config.action_space == "per_embodiment":
-            masks = torch.ones(len(config.embodiments), width)
-            wrist = len(config.wrist_names)
-            for e, hand in enumerate(config.embodiments):
-                present = torch.zeros(len(UNIVERSAL_JOINT_NAMES))
-                present[load_hand(hand).universal_index] = 1
-                masks[e, wrist:] = present
-            self.register_buffer("loss_masks", masks, persistent=False)
+        self.register_buffer("loss_weights", loss_weights(config, width), persistent=False)
         self.reset()
 
     def get_optim_params(self) -> dict:
@@ -98,11 +114,12 @@ class OpfaPolicy(PreTrainedPolicy):
 
     # --- conditioning ------------------------------------------------------------------------------
     def encode_observation(self, batch: dict[str, Tensor]) -> Tensor:
-        """state (B, n_obs, S), pointcloud (B, n_obs, N*3) -> global condition (B, n_obs * (F + S))."""
+        """state (B, n_obs, S), pointcloud (B, n_obs, N*3) -> global condition (B, n_obs * (F + E)), E the
+        state encoder's width."""
         cloud = batch[OBS_POINTCLOUD]
         b, n_obs = cloud.shape[:2]
         features = self.point_encoder(cloud.reshape(b * n_obs, -1, 3)).view(b, n_obs, -1)
-        return torch.cat([features, batch[OBS_STATE]], dim=-1).flatten(1)
+        return torch.cat([features, self.state_encoder(batch[OBS_STATE])], dim=-1).flatten(1)
 
     @staticmethod
     def _embodiment(batch: dict[str, Tensor]) -> Tensor:
@@ -119,11 +136,7 @@ class OpfaPolicy(PreTrainedPolicy):
         head = self._embodiment(batch)
         pred = self.unet(self.ddim.add_noise(x0, noise, t), t, cond, head)
         error = F.mse_loss(pred, self.ddim.target(x0, noise), reduction="none")
-        if self.config.action_space == "per_embodiment":
-            mask = self.loss_masks[head].unsqueeze(1).expand_as(error)
-            loss = (error * mask).sum() / mask.sum()
-        else:
-            loss = error.mean()
+        loss = (error * self.loss_weights[head].unsqueeze(1)).sum(-1).mean()
         return loss, {}
 
     # --- inference ---------------------------------------------------------------------------------
