@@ -6,7 +6,7 @@ import argparse
 import logging
 import sys
 
-from lerobot_opfa import demo
+from lerobot_opfa import demo, train
 from lerobot_opfa.datasets import commands as dataset_commands
 from lerobot_opfa.envs import commands as sim_commands
 from lerobot_opfa.experiments import commands as experiment_commands
@@ -22,13 +22,20 @@ def build_parser() -> argparse.ArgumentParser:
     dataset_commands.add_commands(subparsers)
     galr_commands.add_commands(subparsers)
     experiment_commands.add_commands(subparsers)
+    train.add_command(subparsers)
     demo.add_command(subparsers)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    # `train` passes lerobot-train's flags through untouched; every other command takes only its own.
+    args, unknown = parser.parse_known_args(argv)
+    if getattr(args, "passthrough", False):
+        args.lerobot_args = unknown
+    elif unknown:
+        parser.error(f"unrecognized arguments: {' '.join(unknown)}")
     try:
         return args.func(args) or 0
     except (ValueError, FileNotFoundError, KeyError, RuntimeError) as err:

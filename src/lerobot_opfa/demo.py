@@ -2,20 +2,22 @@
 
 1. Hands: every built-in hand's FK checked against MuJoCo, its open and grasp clouds drawn, and the default
    GaLR checkpoint's round trip (joints -> cloud -> z -> joints) on held-out states.
-2. Policy: scripted demos of three embodiments (a gripper and two dexterous hands) on one task, merged into
-   one dataset, one OPFA policy trained on all of them with `lerobot-train`, and every embodiment evaluated
-   with `lerobot-eval`; a success table and a plot at the end.
+2. Policy: scripted demos of three embodiments (a gripper and two dexterous hands) on one task in one region
+   of the table, merged into one dataset, one OPFA policy trained on all of them with `lerobot-opfa train`
+   (LeRobot's training on the dataset held in memory), and every embodiment evaluated with `lerobot-eval`
+   where its demos are; a success table, `success.json` and a plot at the end.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
 import torch
 from tqdm import tqdm
 
-from lerobot_opfa.envs.regions import REGIONS
+from lerobot_opfa.envs.regions import parse_regions
 from lerobot_opfa.experiments.jobs import Demos, Workspace
 from lerobot_opfa.experiments.protocols import co_training
 from lerobot_opfa.experiments.report import markdown_table, plot, summarize
@@ -40,6 +42,7 @@ def add_command(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--task", default="press_button")
     parser.add_argument("--hands", default="umi,inspire,xhand", help="the embodiments co-trained")
+    parser.add_argument("--region", default="mid_center", help="where the demos are and the policy is tested")
     parser.set_defaults(func=run)
 
 
@@ -77,20 +80,24 @@ def hands_table(args: argparse.Namespace) -> None:
 
 
 def policy_table(args: argparse.Namespace) -> None:
-    """Demos -> merge -> lerobot-train (OPFA) -> lerobot-eval per embodiment, on the whole table."""
+    """Demos -> merge -> train (OPFA) -> lerobot-eval per embodiment, in the demos' region."""
     hands = [h.strip() for h in args.hands.split(",") if h.strip()]
-    everywhere = tuple(REGIONS)
-    demos = [Demos(args.task, h, everywhere, DEMO_SCALE.demos) for h in hands]
-    cells = co_training(args.task, args.task, demos, [everywhere] * len(hands), ("opfa",), seed=0)
+    region = tuple(parse_regions(args.region))
+    demos = [Demos(args.task, h, region, DEMO_SCALE.demos) for h in hands]
+    cells = co_training(args.task, args.task, demos, [region] * len(hands), ("opfa",), seed=0)
     workspace = Workspace(args.output_dir / "pipeline", DEMO_SCALE, args.galr)
     rows = []
-    for cell in tqdm(cells, desc="demos -> merge -> lerobot-train -> lerobot-eval", unit="hand"):
-        rows.append({"group": cell.group, **workspace.evaluate(cell.evaluation)})
+    with tqdm(total=len(cells), desc="hands evaluated (demos, merge and training come first)") as bar:
+        for cell in cells:
+            rows.append({"group": cell.group, **workspace.evaluate(cell.evaluation)})
+            bar.update()
     rows = summarize(rows)
+    success = {r["hand"]: {"successes": sum(r["successes"]), "episodes": r["episodes"]} for r in rows}
+    (args.output_dir / "success.json").write_text(json.dumps(success, indent=2))
     png = plot(rows, args.output_dir / "success.png", f"OPFA co-trained on {', '.join(hands)}")
     print(
-        f"One OPFA policy, co-trained on {DEMO_SCALE.demos} scripted demos of each hand "
-        f"({DEMO_SCALE.min_steps} training steps); {DEMO_SCALE.eval_episodes} evaluation episodes per hand:\n"
+        f"One OPFA policy, co-trained on {DEMO_SCALE.demos} scripted demos of each hand in {args.region} "
+        f"({DEMO_SCALE.epochs:g} epochs); {DEMO_SCALE.eval_episodes} evaluation episodes per hand there:\n"
     )
     print(markdown_table(rows))
     print(f"plot: {png}; videos: {workspace.root / 'videos'}; policy: {workspace.root / 'train'}")

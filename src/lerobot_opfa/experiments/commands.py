@@ -1,5 +1,5 @@
 """`lerobot-opfa experiment spatial|fewshot|nine`: run one of the paper's protocols end to end (demos ->
-merge -> `lerobot-train` per condition -> `lerobot-eval` per cell) and write its table and plot.
+merge -> `lerobot-opfa train` per condition -> `lerobot-eval` per cell) and write its table and plot.
 
 Re-running the same command resumes: finished demos, trainings and evaluations are found and skipped.
 """

@@ -1,7 +1,7 @@
 """The steps every experiment is made of, each idempotent: record demos, merge them, train a policy with
-`lerobot-train`, evaluate it with `lerobot-eval`. Every step writes its result under a name derived from
-its inputs and appears whole or not at all, so an interrupted experiment resumes by running again: what is
-finished is found and skipped.
+`lerobot-opfa train` (LeRobot's training loop on the dataset held in memory), evaluate it with
+`lerobot-eval`. Every step writes its result under a name derived from its inputs and appears whole or not
+at all, so an interrupted experiment resumes by running again: what is finished is found and skipped.
 """
 
 from __future__ import annotations
@@ -21,8 +21,6 @@ from lerobot_opfa.experiments.scales import Scale
 CONDITIONS = {"wo_cotrain": "raw", "naive_cotrain": "per_embodiment", "opfa": "galr"}
 """The paper's three conditions -> the policy's `action_space`."""
 CONDITION_LABELS = {"wo_cotrain": "w/o co-training", "naive_cotrain": "naive co-training", "opfa": "OPFA"}
-LOADER_WORKERS = min(4, os.cpu_count() or 1)
-"""`lerobot-train` data loader workers: LeRobot's dataset reads, not the update, bound a CPU step."""
 EVAL_SEED = 100_000
 """Evaluation episodes are seeded from here, far from the demonstrations' seeds (0 and up)."""
 
@@ -162,11 +160,11 @@ class Workspace:
                 f"--seed={training.seed}",
                 "--policy.push_to_hub=false",
                 "--wandb.enable=false",
-                f"--num_workers={LOADER_WORKERS}",
                 *self.scale.train_args(_frames(dataset)),
             ]
             log = self.root / "logs" / f"train-{training.name}.log"
-            self._run("lerobot-train", args, log, {"OMP_NUM_THREADS": str(_update_threads())})
+            # Its own loader and thread settings: the fastest measured (benchmarks/bench_training.py).
+            self._run("lerobot-opfa", ["train", *args], log)
             (partial / "opfa_training.json").write_text(
                 json.dumps({"condition": training.condition, "demos": [d.name for d in training.demos]})
             )
@@ -223,23 +221,16 @@ class Workspace:
         shutil.rmtree(scratch, ignore_errors=True)
         return result
 
-    def _run(self, exe: str, args: list[str], log: Path, env: dict[str, str] | None = None) -> None:
+    def _run(self, exe: str, args: list[str], log: Path) -> None:
         log.parent.mkdir(parents=True, exist_ok=True)
         path = Path(sys.executable).parent / exe
         with open(log, "w") as f:
             code = subprocess.run(
-                [str(path), *args], stdout=f, stderr=subprocess.STDOUT, env={**(env or {}), **self.env}
+                [str(path), *args], stdout=f, stderr=subprocess.STDOUT, env=self.env
             ).returncode
         if code != 0:
             tail = log.read_text()[-3000:]
             raise RuntimeError(f"{exe} failed (exit {code}); log {log}:\n{tail}")
-
-
-def _update_threads() -> int:
-    """Torch threads of `lerobot-train`'s main process: the cores its loader workers leave. By default it
-    takes every core and competes with the workers; on 2 cores, one thread and two workers train at 60-64
-    samples/s where the default setting gives 29-41 (measured on a nine-hand merged dataset)."""
-    return max(1, (os.cpu_count() or 1) - LOADER_WORKERS)
 
 
 def galr_identity(galr: str) -> str:

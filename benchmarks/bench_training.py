@@ -1,0 +1,203 @@
+"""Training throughput on the CPU: `lerobot-train` next to `lerobot-opfa train` (LeRobot's same training loop
+on the dataset held in memory), on the same dataset, policy and batch size, in one run, each at its fastest
+loader-worker and torch-thread setting; plus the data-loading share of a fast-path step.
+
+    MUJOCO_GL=egl .venv/bin/python benchmarks/bench_training.py [--steps 60] [--skip 10] [--repeats 3]
+
+Data: 20 scripted demos (umi, press_button, mid_center, 256 geometry points) recorded with
+`lerobot-opfa sim demos`. Policy: opfa on raw joints with the `small` scale's flags, batch 32, seed 0 (both
+commands then draw the same batches). Each run trains `--steps` steps with `--log_freq=1` and no checkpoint;
+a step's time is LeRobot's own `updt_s` + `data_s` (`data_s`: waiting for the batch plus LeRobot's
+preprocessor, as LeRobot times it), and samples/s is batch size x steps / their summed time over the steps
+after the first `--skip` (loader start-up, allocator warm-up). Every setting runs `--repeats` times,
+interleaved with the others, and keeps its best run: other processes on the machine only slow runs down.
+Writes benchmarks/results/training.json and training.png.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import torch  # noqa: E402
+
+RESULTS = Path(__file__).parent / "results"
+BIN = Path(sys.executable).parent
+DEMOS = ["--task", "press_button", "--hand", "umi", "--regions", "mid_center", "--episodes", "20",
+         "--n-points", "256", "--pointcloud-source", "geometry", "--repo-id", "local/demos"]  # fmt: skip
+POLICY = ["--policy.type=opfa", "--policy.action_space=raw", "--policy.pointcloud_widths=[32,64,128]",
+          "--policy.optimizer_lr=3e-4", "--batch_size=32"]  # fmt: skip
+BATCH_SIZE = 32
+SETTINGS = [
+    *[("lerobot-train", workers, threads) for workers in (0, 2) for threads in (1, 2)],
+    *[("lerobot-opfa train", workers, threads) for workers in (0, 2) for threads in (1, 2)],
+]
+"""(command, loader workers, torch threads of the training process)."""
+STEP = re.compile(r"step:(\d+) .*?updt_s:([\d.]+) data_s:([\d.]+)")
+
+
+def record_demos(root: Path) -> Path:
+    if not (root / "meta" / "info.json").exists():
+        command = [str(BIN / "lerobot-opfa"), "sim", "demos", *DEMOS, "--output-dir", str(root)]
+        subprocess.run(command, check=True, capture_output=True, env=_env(1))
+    return root
+
+
+def _env(threads: int) -> dict[str, str]:
+    return {**os.environ, "HF_HUB_OFFLINE": "1", "MUJOCO_GL": "egl", "OMP_NUM_THREADS": str(threads)}
+
+
+def train(data: Path, out: Path, command: str, workers: int, threads: int, steps: int, skip: int) -> dict:
+    """One training run; its steady-state step times from LeRobot's per-step log."""
+    exe = [str(BIN / "lerobot-train")] if command == "lerobot-train" else [str(BIN / "lerobot-opfa"), "train"]
+    args = [
+        *POLICY, f"--dataset.repo_id=local/{data.name}", f"--dataset.root={data}", "--policy.device=cpu",
+        "--policy.push_to_hub=false", "--wandb.enable=false", "--save_checkpoint=false", "--log_freq=1",
+        f"--steps={steps}", "--seed=0", f"--num_workers={workers}", f"--output_dir={out}",
+    ]  # fmt: skip
+    start = time.perf_counter()
+    result = subprocess.run([*exe, *args], capture_output=True, text=True, env=_env(threads))
+    wall = time.perf_counter() - start
+    log = result.stdout + result.stderr
+    if result.returncode != 0:
+        raise RuntimeError(f"{command} failed (exit {result.returncode}):\n{log[-3000:]}")
+    rows = [(int(s), float(u), float(d)) for s, u, d in STEP.findall(log)]
+    steady = [(u, d) for s, u, d in rows if s > skip]
+    if len(steady) < 5:
+        raise RuntimeError(f"{command}: only {len(steady)} steady-state steps logged; raise --steps")
+    update, data_s = sum(u for u, _ in steady), sum(d for _, d in steady)
+    return {
+        "command": command,
+        "num_workers": workers,
+        "torch_threads": threads,
+        "samples_per_s": BATCH_SIZE * len(steady) / (update + data_s),
+        "step_s": (update + data_s) / len(steady),
+        "update_s": update / len(steady),
+        "data_s": data_s / len(steady),
+        "data_share": data_s / (update + data_s),
+        "steady_steps": len(steady),
+        "process_wall_s": wall,
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--steps", type=int, default=60, help="training steps per run")
+    parser.add_argument("--skip", type=int, default=10, help="first steps left out of the timing")
+    parser.add_argument("--repeats", type=int, default=3, help="runs per setting (the best is kept)")
+    parser.add_argument("--data", type=Path, help="reuse (or record once into) this demos folder")
+    parser.add_argument("--note", help="stored in the JSON, e.g. what else ran on the machine")
+    args = parser.parse_args()
+    load_before = os.getloadavg()
+    with tempfile.TemporaryDirectory() as tmp:
+        data = record_demos(args.data or Path(tmp) / "bench_demos")
+        frames = json.loads((data / "meta" / "info.json").read_text())["total_frames"]
+        runs = []
+        for repeat in range(args.repeats):
+            for i, (command, workers, threads) in enumerate(SETTINGS):
+                out = Path(tmp) / f"run{repeat}_{i}"
+                run = train(data, out, command, workers, threads, args.steps, args.skip)
+                runs.append(run)
+                speed, update, data_s = run["samples_per_s"], run["update_s"], run["data_s"]
+                print(
+                    f"{command:>18} workers={workers} threads={threads}: {speed:6.1f} samples/s "
+                    f"(update {update:.3f} s, data {data_s:.3f} s per step)",
+                    flush=True,
+                )
+    best = {}
+    for run in runs:
+        key = (run["command"], run["num_workers"], run["torch_threads"])
+        if key not in best or run["samples_per_s"] > best[key]["samples_per_s"]:
+            best[key] = run
+    settings = list(best.values())
+    stock = max((r for r in settings if r["command"] == "lerobot-train"), key=lambda r: r["samples_per_s"])
+    fast = max((r for r in settings if r["command"] != "lerobot-train"), key=lambda r: r["samples_per_s"])
+    result = {
+        "benchmark": "training samples/s: lerobot-train vs lerobot-opfa train (dataset held in memory)",
+        "command": "python benchmarks/bench_training.py"
+        + f" --steps {args.steps} --skip {args.skip} --repeats {args.repeats}",
+        "lerobot_train_samples_per_s": stock["samples_per_s"],
+        "fast_samples_per_s": fast["samples_per_s"],
+        "speedup": fast["samples_per_s"] / stock["samples_per_s"],
+        "fast_data_share": fast["data_share"],
+        "lerobot_train_data_share": stock["data_share"],
+        "lerobot_train_setting": {
+            "num_workers": stock["num_workers"],
+            "torch_threads": stock["torch_threads"],
+        },
+        "fast_setting": {"num_workers": fast["num_workers"], "torch_threads": fast["torch_threads"]},
+        "targets": {"speedup": 2.5, "fast_data_share": 0.05},
+        "settings": {
+            "dataset": f"lerobot-opfa sim demos {' '.join(DEMOS)}",
+            "frames": frames,
+            "policy_flags": POLICY,
+            "steps_per_run": args.steps,
+            "skipped_steps": args.skip,
+            "repeats": args.repeats,
+        },
+        "machine": {
+            "cpu": platform.processor() or platform.machine(),
+            "cpu_count": os.cpu_count(),
+            "python": platform.python_version(),
+            "torch": torch.__version__,
+            "load_average_1_5_15_min_before": load_before,  # other processes compete for the cores
+            "load_average_1_5_15_min_after": os.getloadavg(),
+        },
+        "note": args.note,
+        "best_run_per_setting": settings,
+        "all_runs": runs,
+    }
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    (RESULTS / "training.json").write_text(json.dumps(result, indent=2))
+    print(
+        f"lerobot-train {stock['samples_per_s']:.1f} samples/s, fast path {fast['samples_per_s']:.1f} "
+        f"({result['speedup']:.2f}x), data loading {100 * fast['data_share']:.1f}% of a fast step"
+    )
+    plot(settings, stock, fast, result["speedup"])
+    print(f"wrote {RESULTS}/training.json and .png")
+
+
+def plot(settings: list[dict], stock: dict, fast: dict, speedup: float) -> None:
+    fig, (left, right) = plt.subplots(1, 2, figsize=(12, 4.5), gridspec_kw={"width_ratios": [3, 2]})
+    labels = [
+        f"{r['command']}\n{r['num_workers']} loader workers, {r['torch_threads']} torch thread(s)"
+        for r in settings
+    ]
+    colors = ["C0" if r["command"] == "lerobot-train" else "C1" for r in settings]
+    bars = left.barh(labels, [r["samples_per_s"] for r in settings], color=colors)
+    for bar, run in zip(bars, settings, strict=True):
+        bold = run is stock or run is fast
+        left.text(bar.get_width(), bar.get_y() + bar.get_height() / 2, f" {run['samples_per_s']:.0f}",
+                  va="center", fontsize=8, fontweight="bold" if bold else "normal")  # fmt: skip
+    left.set_xlabel(f"training samples per second (batch {BATCH_SIZE}, steady state)")
+    left.invert_yaxis()
+    left.tick_params(axis="y", labelsize=8)
+    names = ["lerobot-train (best)", "lerobot-opfa train (best)"]
+    update = [stock["update_s"] * 1000, fast["update_s"] * 1000]
+    data = [stock["data_s"] * 1000, fast["data_s"] * 1000]
+    right.bar(names, update, color="C2", label="update (updt_s)")
+    right.bar(names, data, bottom=update, color="C3", label="data loading + preprocessor (data_s)")
+    right.set_ylabel("ms per step")
+    right.set_title(
+        f"{speedup:.2f}x samples/s; data {100 * fast['data_share']:.1f}% of a fast step", fontsize=10
+    )
+    right.legend(fontsize=8)
+    fig.suptitle(f"opfa training on {os.cpu_count()} CPU cores: lerobot-train vs the in-memory fast path")
+    fig.tight_layout()
+    fig.savefig(RESULTS / "training.png", dpi=110)
+
+
+if __name__ == "__main__":
+    main()

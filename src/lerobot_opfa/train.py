@@ -1,0 +1,78 @@
+"""`lerobot-opfa train`: `lerobot-train` itself (its flags, loop, optimizer and scheduler presets,
+checkpoints, resume, logging, wandb, accelerate) on the dataset held in memory.
+
+LeRobot's `make_train_eval_datasets` is swapped, for this call only, for one that wraps the LeRobotDatasets
+it makes in `InMemoryDataset`; everything else is LeRobot's code, including its episode-aware sampler.
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import logging
+import os
+import sys
+import time
+from unittest import mock
+
+HELP = (
+    "lerobot-train with the dataset held in memory: same flags (see lerobot-train --help), numeric datasets"
+)
+
+
+def add_command(subparsers: argparse._SubParsersAction) -> None:
+    # No argparse options of its own: every argument, --help included, is lerobot-train's (cli.main passes
+    # the ones argparse does not know through as `lerobot_args`).
+    parser = subparsers.add_parser("train", help=HELP, description=HELP, add_help=False)
+    parser.set_defaults(func=run, passthrough=True)
+
+
+def run(args: argparse.Namespace) -> int:
+    train(args.lerobot_args)
+    return 0
+
+
+def train(argv: list[str]) -> None:
+    """Runs LeRobot's training entry point on `argv` (lerobot-train's flags) with the in-memory dataset.
+
+    The loader runs in the main process unless `--num_workers` is given: an item is a few index gathers,
+    cheaper than shipping it from a worker process. Torch's thread count follows OMP_NUM_THREADS when set,
+    else every core goes to the update step (there are no loader workers to leave cores to)."""
+    import torch
+    from lerobot.scripts import lerobot_train
+
+    if not any(a == "--num_workers" or a.startswith("--num_workers=") for a in argv):
+        argv = [*argv, "--num_workers=0"]
+    if "OMP_NUM_THREADS" not in os.environ:
+        usable = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else range(os.cpu_count() or 1)
+        torch.set_num_threads(len(usable))
+    make = _in_memory(lerobot_train.make_train_eval_datasets)
+    with (
+        mock.patch.object(lerobot_train, "make_train_eval_datasets", make),
+        mock.patch.object(sys, "argv", ["lerobot-opfa train", *argv]),
+    ):
+        lerobot_train.main()
+
+
+def _in_memory(make_train_eval_datasets):
+    """LeRobot's dataset factory, with its map-style datasets read into memory."""
+    import torch
+
+    from lerobot_opfa.datasets.in_memory import InMemoryDataset
+
+    @functools.wraps(make_train_eval_datasets)
+    def make(cfg):
+        if cfg.dataset.streaming:
+            raise ValueError("the in-memory fast path reads whole datasets, not streams; use lerobot-train")
+        dataset, eval_dataset = make_train_eval_datasets(cfg)
+        start = time.perf_counter()
+        dataset = InMemoryDataset(dataset)
+        eval_dataset = None if eval_dataset is None else InMemoryDataset(eval_dataset)
+        seconds = time.perf_counter() - start
+        logging.info(
+            f"Dataset held in memory: {dataset.num_frames} frames read in {seconds:.2f} s; "
+            f"torch threads: {torch.get_num_threads()}"
+        )
+        return dataset, eval_dataset
+
+    return make
