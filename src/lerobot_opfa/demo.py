@@ -1,6 +1,6 @@
 """`lerobot-opfa demo` (what `make demo` runs): the whole pipeline on a small built-in default.
 
-1. Hands: every built-in hand's FK checked against MuJoCo, its open and grasp clouds drawn, and the default
+1. Hands: every built-in hand's FK checked against MuJoCo, its open and grasp clouds drawn, and the long
    GaLR checkpoint's round trip (joints -> cloud -> z -> joints) on held-out states.
 2. Policy: scripted demos of three embodiments (a gripper and two dexterous hands) on one task in one region
    of the table, merged into one dataset, one OPFA policy trained on all of them with `lerobot-opfa train`
@@ -27,7 +27,7 @@ from lerobot_opfa.galr.model import Galr
 from lerobot_opfa.hands.plot import plot_clouds
 from lerobot_opfa.hands.registry import builtin_hands, load_hand
 from lerobot_opfa.hands.validate import fk_error_vs_mujoco
-from lerobot_opfa.resources import default_galr_checkpoint
+from lerobot_opfa.resources import resource_dir
 
 
 def add_command(subparsers: argparse._SubParsersAction) -> None:
@@ -35,7 +35,7 @@ def add_command(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--output-dir", type=Path, default=Path("outputs/demo"))
     parser.add_argument("--n-points", type=int, default=1024, help="points of the hand clouds drawn")
     parser.add_argument(
-        "--galr", default=str(default_galr_checkpoint()), help="GaLR checkpoint (dir or repo)"
+        "--galr", default=str(resource_dir("checkpoints") / "galr_long"), help="GaLR checkpoint (dir or repo)"
     )
     parser.add_argument(
         "--states", type=int, default=64, help="held-out states per hand for the GaLR round trip"
