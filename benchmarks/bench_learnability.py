@@ -90,6 +90,10 @@ def run(work: Path, galr: str, hand: str, task: str, space: str, epochs: int) ->
     }
 
 
+def _key(run: dict) -> tuple:
+    return run["hand"], run["task"], run["action_space"], run["epochs"]
+
+
 def plot(runs: list[dict], path: Path) -> None:
     tasks = sorted({r["task"] for r in runs})
     fig, axes = plt.subplots(1, len(tasks), figsize=(5.5 * len(tasks), 4), squeeze=False)
@@ -125,21 +129,23 @@ def main() -> None:
     parser.add_argument("--work", type=Path, default=Path("outputs/learnability"))
     args = parser.parse_args()
     commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True).stdout.strip()
-    setting = {"region": REGION, "demos": DEMOS, "galr": args.galr, "galr_sha256": galr_identity(args.galr),
-               "commit": commit, "machine": f"{os.cpu_count()} cores, {platform.machine()}"}  # fmt: skip
+    setting = {"region": REGION, "demos": DEMOS, "galr": os.path.relpath(args.galr),
+               "galr_sha256": galr_identity(args.galr), "commit": commit,
+               "machine": f"{os.cpu_count()} cores, {platform.machine()}"}  # fmt: skip
     RESULTS.mkdir(parents=True, exist_ok=True)
     out = RESULTS / "learnability.json"
-    runs: list[dict] = []
+    runs: list[dict] = json.loads(out.read_text()) if out.exists() else []  # other tasks' runs stay
     lengths = sorted(int(e) for e in args.epochs.split(","))
     for task in args.tasks.split(","):
         for hand in args.hands.split(","):
             for space in args.spaces.split(","):
                 for epochs in lengths:
-                    runs.append({**run(args.work, args.galr, hand, task, space, epochs), **setting})
-                    print(json.dumps(runs[-1]), flush=True)
+                    result = {**run(args.work, args.galr, hand, task, space, epochs), **setting}
+                    runs = [r for r in runs if _key(r) != _key(result)] + [result]
+                    print(json.dumps(result), flush=True)
                     out.write_text(json.dumps(runs, indent=2))
                     plot(runs, RESULTS / "learnability.png")
-                    if runs[-1]["successes"] >= TARGET * runs[-1]["episodes"]:
+                    if result["successes"] >= TARGET * result["episodes"]:
                         break
 
 
