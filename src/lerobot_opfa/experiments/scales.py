@@ -6,7 +6,8 @@ times the steps of one trained on a single hand's, clamped to [min_steps, max_st
 `paper` uses the paper's counts (72 demonstrations per embodiment, DP3's 3000 epochs and U-Net); `small`
 trains every policy for 100 epochs, the length at which every single-hand policy of the learnability
 benchmark (benchmarks/bench_learnability.py) reached 90 % on press_button and lift in its demos' region
-(about 8 steps of 32 samples a second on 2 cores with `lerobot-opfa train`); `toy` exists for the tests.
+(`lerobot-opfa train` on 2 cores: about 8 steps of 32 samples a second with one thread, 14 with two on an
+idle machine); `toy` exists for the tests.
 """
 
 from __future__ import annotations
