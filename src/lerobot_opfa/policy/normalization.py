@@ -50,6 +50,7 @@ GUARD_WIDTHS = 10.0
 def noise_floor(
     encode: Callable[[torch.Tensor, torch.Tensor], torch.Tensor],
     rows: torch.Tensor,
+    encoded: torch.Tensor,
     ids: torch.Tensor,
     raw_noise: torch.Tensor,
     n_embodiments: int,
@@ -57,12 +58,13 @@ def noise_floor(
 ) -> torch.Tensor:
     """(E, D): root-mean-square change of each policy-space entry when every raw entry of `rows` (F, R)
     moves by its physical noise `raw_noise` (R,) with a random sign. `encode(rows, ids)` maps raw rows to
-    the policy space, so the floor of z is what joint noise does to the GaLR latent."""
+    the policy space (so the floor of z is what joint noise does to the GaLR latent); `encoded` (F, D) is
+    `rows` already mapped, so only the noisy rows go through the GaLR."""
     generator = torch.Generator().manual_seed(0)
     keep = torch.randperm(len(rows), generator=generator)[:NOISE_SAMPLES]
     rows, ids = rows[keep], ids[keep]
     signs = torch.randint(0, 2, rows.shape, generator=generator).to(rows) * 2 - 1
-    delta = encode(rows + signs * raw_noise, ids) - encode(rows, ids)
+    delta = encode(rows + signs * raw_noise, ids) - encoded[keep]
     return _per_embodiment(delta, ids, n_embodiments, pooled, lambda d: d.pow(2).mean(0).sqrt(), 0.0)
 
 

@@ -153,6 +153,7 @@ def _policy_space_tables(
     floor = noise_floor(
         lambda rows, row_ids: encode(rows, row_ids)[TransitionKey.OBSERVATION][OBS_STATE],
         raw,
+        out[TransitionKey.OBSERVATION][OBS_STATE],
         ids,
         _raw_noise(wrist, universal),
         len(config.embodiments),
