@@ -27,16 +27,14 @@ from lerobot_opfa.galr.model import Galr
 from lerobot_opfa.hands.plot import plot_clouds
 from lerobot_opfa.hands.registry import builtin_hands, load_hand
 from lerobot_opfa.hands.validate import fk_error_vs_mujoco
-from lerobot_opfa.resources import resource_dir
+from lerobot_opfa.resources import long_galr_checkpoint
 
 
 def add_command(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser("demo", help="run the pipeline end to end on a small default")
     parser.add_argument("--output-dir", type=Path, default=Path("outputs/demo"))
     parser.add_argument("--n-points", type=int, default=1024, help="points of the hand clouds drawn")
-    parser.add_argument(
-        "--galr", default=str(resource_dir("checkpoints") / "galr_long"), help="GaLR checkpoint (dir or repo)"
-    )
+    parser.add_argument("--galr", default=str(long_galr_checkpoint()), help="GaLR checkpoint (dir or repo)")
     parser.add_argument(
         "--states", type=int, default=64, help="held-out states per hand for the GaLR round trip"
     )

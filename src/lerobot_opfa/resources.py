@@ -16,3 +16,8 @@ def resource_dir(name: str) -> Path:
 def default_galr_checkpoint() -> Path:
     """The GaLR checkpoint trained on all built-in hands by the documented CPU command (see README)."""
     return resource_dir("checkpoints") / "galr_default"
+
+
+def long_galr_checkpoint() -> Path:
+    """The most accurate packaged GaLR checkpoint (135 CPU minutes; see README)."""
+    return resource_dir("checkpoints") / "galr_long"
