@@ -542,3 +542,17 @@ def test_wrist_and_hand_each_carry_half_the_loss(data, space, dataset):
             present = torch.zeros(weights.shape[-1] - wrist, dtype=torch.bool)
             present[load_hand(hand).universal_index] = True
             assert (weights[e, wrist:][~present] == 0).all() and (weights[e, wrist:][present] > 0).all()
+
+
+def test_state_guard_reads_the_right_frame_of_a_history(caplog):
+    """A (batch, time, entries) state: the warning reports the frame that is out of range."""
+    tables = {f"observation.state.{k}": v for k, v in
+              {"shift": torch.zeros(1, 2), "scale": torch.ones(1, 2), "low": -torch.ones(1, 2),
+               "high": torch.ones(1, 2)}.items()}  # fmt: skip
+    step = OpfaNormalizeStep(keys=["observation.state"], tables=tables, names=["a", "b"], embodiments=["h"])
+    state = torch.tensor([[[0.5, 0.0], [0.0, 42.0]]])
+    observation = {"observation.state": state, OBS_EMBODIMENT: torch.zeros(1, dtype=torch.long)}
+    with caplog.at_level(logging.WARNING, logger="lerobot_opfa.policy.normalization"):
+        step(create_transition(observation=observation))
+    (message,) = [r.getMessage() for r in caplog.records]
+    assert "entry 'b' of hand 'h' is 42, 20 range-widths outside its training range [-1, 1]" in message

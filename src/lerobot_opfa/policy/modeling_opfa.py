@@ -46,8 +46,8 @@ def loss_weights(config: OpfaConfig, width: int) -> Tensor:
     motion (denoising error of the wrist 10x that of `raw` after the same training)."""
     n_wrist = len(config.wrist_names)
     present = torch.ones(len(config.embodiments), width - n_wrist)
-    if config.action_space == "per_embodiment":
-        present.zero_()
+    if config.action_space == "per_embodiment":  # only the universal joints each hand has
+        present = torch.zeros_like(present)
         for e, hand in enumerate(config.embodiments):
             present[e, load_hand(hand).universal_index] = 1
     hand_share = 0.5 if n_wrist else 1.0

@@ -180,17 +180,17 @@ class OpfaNormalizeStep(_EmbodimentAffine, ProcessorStep):
         width = (high - low).maximum(self._table(OBS_STATE, "scale", state, ids))
         widths_out = ((low - state).maximum(state - high) / width).flatten(0, -2)
         rows = ids.repeat_interleave(len(widths_out) // len(ids))
+        flat, low, high = (x.expand_as(state).flatten(0, -2) for x in (state, low, high))
         for row, entry in (widths_out > GUARD_WIDTHS).nonzero().tolist():
             hand = int(rows[row])
             if (hand, entry) in self._warned:
                 continue
             self._warned.add((hand, entry))
-            flat = state.flatten(0, -2)
             logger.warning(
                 "%s entry '%s' of hand '%s' is %.4g, %.0f range-widths outside its training range "
                 "[%.4g, %.4g]: the policy has not seen such inputs (the robot has drifted out of the data)",
                 OBS_STATE, self._name(entry), self._hand(hand), flat[row, entry],
-                widths_out[row, entry], low.flatten(0, -2)[row, entry], high.flatten(0, -2)[row, entry],
+                widths_out[row, entry], low[row, entry], high[row, entry],
             )  # fmt: skip
 
     def _name(self, entry: int) -> str:
