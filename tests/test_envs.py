@@ -109,7 +109,7 @@ def test_regions_place_objects_inside():
     [
         (
             {"task": "juggle"},
-            "unknown task 'juggle'; valid tasks: lift, pick_place, press_button, pull_drawer",
+            "unknown task 'juggle'; valid tasks: lift, lift_box, pick_place, press_button, pull_drawer",
         ),
         ({"hand": "hook"}, "unknown hand 'hook': not a built-in (ability, allegro"),
         ({"regions": "moon"}, "unknown region(s) ['moon']; valid regions: all, near_right"),

@@ -102,7 +102,7 @@ def test_cli_bad_names_are_clear_errors(tmp_path, capsys):
         (
             "--task",
             "juggle",
-            "unknown task 'juggle'; valid tasks: lift, pick_place, press_button, pull_drawer",
+            "unknown task 'juggle'; valid tasks: lift, lift_box, pick_place, press_button, pull_drawer",
         ),
         ("--hand", "hook", "unknown hand 'hook': not a built-in (ability, allegro"),
         ("--regions", "moon", "unknown region(s) ['moon']; valid regions: all, near_right"),

@@ -15,7 +15,7 @@ import torch
 from lerobot_opfa.cli import main
 from lerobot_opfa.envs.regions import REGIONS
 from lerobot_opfa.experiments import protocols
-from lerobot_opfa.experiments.report import markdown_table, summarize, wilson_interval
+from lerobot_opfa.experiments.report import markdown_table, summarize, tables, wilson_interval
 from lerobot_opfa.experiments.scales import get_scale
 
 
@@ -44,28 +44,88 @@ def test_table_pools_the_episodes_of_all_embodiments():
     assert pooled == ["| w/o co-training | 12 [7, 20] |", "| OPFA | 14 [7, 26] |"]  # 12/100, 7/50
 
 
+def _transfer(cells):
+    return [c for c in cells if c.kind == protocols.TRANSFER]
+
+
 def test_protocol_cells():
     small = get_scale("small")
     cells = protocols.spatial(
         small, ("lift", "press_button"), ("inspire", "xhand"), ("umi", "inspire", "leap")
     )
-    assert len(cells) == 2 * 2 * 3 + 3 * 3
-    for cell in cells:  # every embodiment is tested where only the others' demos are
+    assert len(_transfer(cells)) == 2 * 2 * 3 + 3 * 3
+    for cell in _transfer(cells):  # every embodiment is tested where only the others' demos are
         own = next(d for d in cell.evaluation.training.demos if d.hand == cell.evaluation.hand).regions
         assert not set(own) & set(cell.evaluation.regions)
-    naive = [c for c in cells if c.condition == "naive_cotrain" and c.group == "lift"]
+    naive = [c for c in _transfer(cells) if c.condition == "naive_cotrain" and c.group == "lift"]
     assert {len(c.evaluation.training.demos) for c in naive} == {2}
     few = protocols.fewshot(small, "lift", "inspire", "xhand")
-    assert [c.group for c in few if c.condition == "opfa"] == ["1", "2", "4", "8", "12", "18", "36"]
+    assert [c.group for c in _transfer(few) if c.condition == "opfa"] == [
+        "1",
+        "2",
+        "4",
+        "8",
+        "12",
+        "18",
+        "36",
+    ]
     assert all(
         d.episodes == small.demos
         for c in few
         if c.condition == "opfa"
         for d in c.evaluation.training.demos[1:]
     )
-    assert len(protocols.nine("lift")) == 9 * 3
+    assert len(_transfer(protocols.nine("lift"))) == 9 * 3
     with pytest.raises(ValueError, match="unknown condition"):
         protocols.nine("lift", conditions=("oracle",))
+
+
+@pytest.mark.parametrize(
+    "cells",
+    [
+        protocols.spatial(get_scale("small"), ("press_button",), ("umi", "inspire", "leap")),
+        protocols.objects(get_scale("small"), ("lift", "lift_box"), ("inspire", "xhand")),
+        protocols.fewshot(get_scale("small"), "lift", "inspire", "xhand"),
+        protocols.nine("press_button"),
+    ],
+    ids=["spatial", "object", "fewshot", "nine"],
+)
+def test_every_policy_is_tested_on_each_of_its_hands_own_demos(cells):
+    inside = {
+        (c.evaluation.training, c.evaluation.hand, c.evaluation.task, c.evaluation.regions)
+        for c in cells
+        if c.kind == protocols.IN_DISTRIBUTION
+    }
+    trainings = {c.evaluation.training for c in cells}
+    assert inside == {(t, d.hand, d.task, d.regions) for t in trainings for d in t.demos}
+    first = {}  # a policy's ceiling comes before its transfer cells
+    for i, c in enumerate(cells):
+        first.setdefault((c.evaluation.training, c.kind), i)
+    assert all(first[(t, protocols.IN_DISTRIBUTION)] < first[(t, protocols.TRANSFER)] for t in trainings)
+
+
+def test_object_protocol_tests_each_hand_on_the_other_object():
+    cells = _transfer(protocols.objects(get_scale("small"), ("lift", "lift_box"), ("inspire", "xhand")))
+    for cell in cells:
+        (own,) = [d for d in cell.evaluation.training.demos if d.hand == cell.evaluation.hand]
+        assert cell.evaluation.task != own.task and set(cell.evaluation.regions) == set(REGIONS)
+    assert {c.condition for c in cells} == {"wo_cotrain", "naive_cotrain", "opfa"} and len(cells) == 6
+    with pytest.raises(ValueError, match="one distinct task"):
+        protocols.objects(get_scale("small"), ("lift", "lift"), ("inspire", "xhand"))
+
+
+def test_transfer_cell_of_a_policy_failing_in_distribution_is_flagged():
+    def cell(kind, wins, training="opfa-x"):
+        return {"group": "lift", "hand": "inspire", "condition": "opfa", "kind": kind, "training": training,
+                "successes": [True] * wins + [False] * (50 - wins)}  # fmt: skip
+
+    rows = summarize([cell("in_distribution", 30), cell("transfer", 5)])
+    transfer = next(r for r in rows if r["kind"] == "transfer")
+    assert transfer["in_distribution_rate"] == 0.6 and transfer["ceiling_ok"] is False
+    text = tables(rows)
+    assert "| OPFA | 10 [4, 21] † |" in text and "| OPFA | 60 [46, 72] |" in text
+    rows = summarize([cell("in_distribution", 45), cell("transfer", 5)])
+    assert "†" not in tables(rows)
 
 
 def test_spatial_experiment_toy_end_to_end_and_resume(tmp_path, capsys):
@@ -73,7 +133,7 @@ def test_spatial_experiment_toy_end_to_end_and_resume(tmp_path, capsys):
     argv = [
         "experiment", "spatial", "--scale", "toy", "--tasks", "press_button", "--hands", "umi,inspire",
         "--more-hands", "", "--conditions", "wo_cotrain,opfa", "--output-dir", str(work),
-        "--report-dir", str(report),
+        "--report-dir", str(report), "--workers", "2",
     ]  # fmt: skip
     assert main(argv) == 0
     result = json.loads((report / "spatial_toy.json").read_text())
@@ -84,6 +144,13 @@ def test_spatial_experiment_toy_end_to_end_and_resume(tmp_path, capsys):
     assert all(len(r["successes"]) == 2 and 0 <= r["ci95"][0] <= r["ci95"][1] <= 1 for r in rows)
     umi = next(r for r in rows if r["hand"] == "umi")
     assert set(umi["regions"]) == set(protocols.split_regions(2)[1])  # the other hand's regions
+    inside = result["in_distribution"]  # one per trained policy and hand, where its demos are
+    assert sorted((e["condition"], e["hand"]) for e in inside) == sorted(
+        (c, h) for h in ("umi", "inspire") for c in ("wo_cotrain", "opfa")
+    )
+    assert all(0 <= e["successes"] <= e["episodes"] == 2 for e in inside)
+    assert set(next(e for e in inside if e["hand"] == "umi")["regions"]) == set(protocols.split_regions(2)[0])
+    assert all("in_distribution_rate" in r and r["commit"] for r in rows)
     assert (report / "spatial_toy.png").read_bytes()[:4] == b"\x89PNG"
     assert "| OPFA |" in (report / "spatial_toy.md").read_text()
     assert "w/o co-training" in capsys.readouterr().out
@@ -93,6 +160,7 @@ def test_spatial_experiment_toy_end_to_end_and_resume(tmp_path, capsys):
     assert len(checkpoints) == 3  # one w/o co-training policy per hand, one OPFA policy
     stamps = [c.stat().st_mtime_ns for c in checkpoints]
     lost = sorted((work / "eval").glob("*.json"))[0]
+    assert len(list((work / "eval").glob("*.json"))) == 8
     lost.unlink()
     assert main(argv) == 0
     assert lost.exists()

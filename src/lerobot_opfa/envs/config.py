@@ -17,7 +17,7 @@ from lerobot_opfa.envs.regions import parse_regions
 from lerobot_opfa.policy.configuration_opfa import OBS_HAND, OBS_POINTCLOUD
 
 # Task name -> episode length in steps at the default 20 Hz (the scripted experts finish well within).
-EPISODE_STEPS = {"lift": 100, "pick_place": 160, "press_button": 80, "pull_drawer": 120}
+EPISODE_STEPS = {"lift": 100, "lift_box": 100, "pick_place": 160, "press_button": 80, "pull_drawer": 120}
 WRIST_DOF = 6
 ENV_STATE_DIM = 11  # see `tasks`: object position, object quaternion, target position, articulation
 ENTRY_POINT = "lerobot_opfa.envs.env:OpfaSimEnv"

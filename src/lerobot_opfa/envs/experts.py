@@ -15,7 +15,7 @@ import numpy as np
 
 from lerobot_opfa.envs.env import OpfaSimEnv
 from lerobot_opfa.envs.scene import HOME, tool_to_world
-from lerobot_opfa.envs.tasks import Lift, PickPlace, PressButton, PullDrawer
+from lerobot_opfa.envs.tasks import Lift, LiftBox, PickPlace, PressButton, PullDrawer
 
 # Hands close this far past the spec's grasp pose (clipped to the limits), so the servos keep squeezing an
 # object that stops the fingers short of the pose; grippers close to their limit (their grasp poses are
@@ -28,7 +28,7 @@ ACTION_NOISE = 0.001  # m, per step on the wrist position
 CLEARANCE = 0.004  # m, between the hand and the table
 LIFT = 0.12  # m, approach from and retreat to this far above a grasp
 SINK = 0.03  # m, the hand sinks this much while closing (as far as the closing hand clears the table)
-CAN_GRASP_DEPTH = 0.035  # m, the grasp centre reaches this far below the can's top
+GRASP_DEPTH = 0.035  # m, the grasp centre reaches this far below the top of the object to lift
 DROP = 0.01  # m, a carried object is let go this far above where it comes to rest
 
 # Per hand, m: grasp the banana this far along its axis from the middle (towards where the fingertips
@@ -103,9 +103,13 @@ class ScriptedExpert:
 
     def _plan(self) -> list[Waypoint]:
         task, place = self.env.task, self.env.placement
-        if isinstance(task, Lift):  # near the top of the upright can, from any side
-            yaw = self.rng.uniform(-0.5, 0.5)
-            plan, grasp = self._grasp_plan(place.xy, 2 * task.half_height - CAN_GRASP_DEPTH, yaw)
+        if isinstance(task, Lift):  # near the top of the upright object, from any side (a box's face)
+            yaw = (
+                place.yaw + self.rng.normal(0.0, 0.05)
+                if isinstance(task, LiftBox)
+                else self.rng.uniform(-0.5, 0.5)
+            )
+            plan, grasp = self._grasp_plan(place.xy, 2 * task.half_height - GRASP_DEPTH, yaw)
             plan.append(Waypoint(np.array([*(grasp + [0, 0, 0.15]), yaw]), SQUEEZE, self._steps(20)))
         elif isinstance(task, PickPlace):
             # The banana lies across the thumb's squeeze direction, its inner curve (local +y) towards the

@@ -78,17 +78,21 @@ class Lift(Task):
 
     name = "lift"
     description = "lift the can"
+    object_name = "can"
     radius, half_height, lift_height = 0.032, 0.06, 0.08
     mass = 0.35  # kg, a full 330 ml drink can (an empty one tips over at a fingertip's touch)
 
     def build(self, spec: mujoco.MjSpec) -> None:
-        body = spec.worldbody.add_body(name="can", pos=[0, 0, self.half_height])
-        body.add_freejoint(name="can")
+        body = spec.worldbody.add_body(name=self.object_name, pos=[0, 0, self.half_height])
+        body.add_freejoint(name=self.object_name)
+        self.add_geom(body)
+
+    def add_geom(self, body: mujoco.MjsBody) -> None:
         size = [self.radius, self.half_height, 0]
         _geom(body, [0.8, 0.15, 0.1, 1], type=CYLINDER, size=size, mass=self.mass)
 
     def bind(self, scene: Scene) -> None:
-        self.qpos = scene.model.jnt_qposadr[scene.model.joint("can").id]
+        self.qpos = scene.model.jnt_qposadr[scene.model.joint(self.object_name).id]
 
     def place(self, scene: Scene, data: mujoco.MjData, xy: np.ndarray, rng: np.random.Generator) -> Placement:
         data.qpos[self.qpos : self.qpos + 7] = [*xy, self.half_height, 1, 0, 0, 0]
@@ -99,6 +103,27 @@ class Lift(Task):
 
     def success(self, scene: Scene, data: mujoco.MjData) -> bool:
         return bool(data.qpos[self.qpos + 2] - self.half_height >= self.lift_height)
+
+
+class LiftBox(Lift):
+    """Lift an upright box 8 cm off the table: the skill of `lift` on another object (the paper's object
+    generalisation), square where the can is round. Taller or lighter boxes tip over when fingers strike
+    them (measured with the scripted experts)."""
+
+    name = "lift_box"
+    description = "lift the box"
+    object_name = "box"
+    half_width, half_height = 0.03, 0.055
+    mass = 0.35  # kg
+
+    def add_geom(self, body: mujoco.MjsBody) -> None:
+        size = [self.half_width, self.half_width, self.half_height]
+        _geom(body, [0.2, 0.45, 0.85, 1], type=BOX, size=size, mass=self.mass)
+
+    def place(self, scene: Scene, data: mujoco.MjData, xy: np.ndarray, rng: np.random.Generator) -> Placement:
+        yaw = float(rng.uniform(-np.pi / 4, np.pi / 4))  # a square box: every yaw up to a quarter turn
+        data.qpos[self.qpos : self.qpos + 7] = [*xy, self.half_height, np.cos(yaw / 2), 0, 0, np.sin(yaw / 2)]
+        return Placement(xy, yaw)
 
 
 class PickPlace(Task):
@@ -252,7 +277,7 @@ class PullDrawer(Task):
         return bool(data.qpos[self.qpos] >= self.opening)
 
 
-TASKS: dict[str, type[Task]] = {t.name: t for t in (Lift, PickPlace, PressButton, PullDrawer)}
+TASKS: dict[str, type[Task]] = {t.name: t for t in (Lift, LiftBox, PickPlace, PressButton, PullDrawer)}
 
 
 def make_task(name: str) -> Task:

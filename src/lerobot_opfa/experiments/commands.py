@@ -1,7 +1,9 @@
-"""`lerobot-opfa experiment spatial|fewshot|nine`: run one of the paper's protocols end to end (demos ->
-merge -> `lerobot-opfa train` per condition -> `lerobot-eval` per cell) and write its table and plot.
+"""`lerobot-opfa experiment spatial|object|fewshot|nine`: run one of the paper's protocols end to end
+(demos -> merge -> `lerobot-opfa train` per condition -> `lerobot-eval` per cell) and write its table and
+plot.
 
 Re-running the same command resumes: finished demos, trainings and evaluations are found and skipped.
+With `--workers N`, N policies train (and are evaluated) at once, each with its share of the CPU threads.
 """
 
 from __future__ import annotations
@@ -13,19 +15,21 @@ import platform
 import shlex
 import sys
 import time
+from concurrent.futures import ThreadPoolExecutor, as_completed
 from datetime import datetime
 from pathlib import Path
 
 from tqdm import tqdm
 
 from lerobot_opfa.experiments import protocols
-from lerobot_opfa.experiments.jobs import CONDITIONS, Workspace
+from lerobot_opfa.experiments.jobs import CONDITIONS, Workspace, galr_identity, source_commit
 from lerobot_opfa.experiments.report import summarize, write_report
 from lerobot_opfa.experiments.scales import SCALES, get_scale
 from lerobot_opfa.resources import default_galr_checkpoint
 
 TITLES = {
     "spatial": "Spatial generalisation: success in regions covered only by the other embodiments' demos",
+    "object": "Object generalisation: success on the object only the other embodiment's demos handle",
     "fewshot": "Few-shot: success of a new embodiment against its number of demos",
     "nine": "Nine embodiments, one region and eight demos each: success on the whole table",
 }
@@ -41,6 +45,9 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     spatial.add_argument(
         "--more-hands", default="umi,inspire,xhand,leap", help="a larger run on the first task ('' skips)"
     )
+    objects = experiment.add_parser("object", help="w/o vs naive co-training vs OPFA, the other's object")
+    objects.add_argument("--tasks", default="lift,lift_box", help="one task (object) per hand")
+    objects.add_argument("--hands", default="inspire,xhand")
     fewshot = experiment.add_parser("fewshot", help="success against the number of demos of a new hand")
     fewshot.add_argument("--task", default="press_button")
     fewshot.add_argument("--new-hand", default="inspire")
@@ -49,13 +56,19 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     nine.add_argument("--task", default="press_button")
     nine.add_argument("--hands", default=",".join(protocols.NINE_HANDS))
     nine.add_argument("--demos-per-hand", type=int, default=8)
-    for parser in (spatial, fewshot, nine):
+    for parser in (spatial, objects, fewshot, nine):
         parser.add_argument("--scale", default="small", choices=list(SCALES))
         parser.add_argument("--output-dir", type=Path, help="work folder (default outputs/experiments/NAME)")
         parser.add_argument("--report-dir", type=Path, help="where the JSON/MD/PNG go (default: output dir)")
         parser.add_argument("--galr", default=str(default_galr_checkpoint()), help="GaLR checkpoint")
         parser.add_argument("--conditions", default=",".join(CONDITIONS))
         parser.add_argument("--seed", type=int, default=0)
+        parser.add_argument(
+            "--workers",
+            type=int,
+            default=1,
+            help="policies trained at once (each gets CPUs / workers threads)",
+        )
         parser.set_defaults(func=run)
 
 
@@ -69,32 +82,61 @@ def cells_of(args: argparse.Namespace) -> list[protocols.Cell]:
         return protocols.spatial(
             scale, _names(args.tasks), _names(args.hands), _names(args.more_hands), conditions, args.seed
         )
+    if args.experiment == "object":
+        return protocols.objects(scale, _names(args.tasks), _names(args.hands), conditions, args.seed)
     if args.experiment == "fewshot":
         return protocols.fewshot(scale, args.task, args.new_hand, args.other_hand, conditions, args.seed)
     return protocols.nine(args.task, _names(args.hands), args.demos_per_hand, conditions, args.seed)
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.workers < 1:
+        raise ValueError(f"--workers must be at least 1, not {args.workers}")
     start, run_id = time.monotonic(), datetime.now().isoformat()
     cells = cells_of(args)
     name = f"{args.experiment}_{args.scale}"
     root = args.output_dir or Path("outputs/experiments") / name
-    workspace = Workspace(root, get_scale(args.scale), args.galr)
+    threads = max(1, (os.cpu_count() or 1) // args.workers) if args.workers > 1 else None
+    workspace = Workspace(root, get_scale(args.scale), args.galr, threads)
     meta = {
         "experiment": args.experiment,
         "title": TITLES[args.experiment],
         "scale": args.scale,
         "command": "lerobot-opfa " + shlex.join(sys.argv[1:] if sys.argv[0].endswith("lerobot-opfa") else []),
         "arguments": {k: str(v) for k, v in vars(args).items() if k != "func"},
+        "galr_identity": galr_identity(args.galr),
+        "commit": source_commit(),
         "machine": _machine(),
     }
-    rows, out_dir, curve = [], args.report_dir or root, args.experiment == "fewshot"
-    for cell in tqdm(cells, desc=f"experiment {args.experiment}", unit="cell"):
-        result = workspace.evaluate(cell.evaluation)
-        rows.append({"group": cell.group, **{k: v for k, v in result.items() if k != "success_rate"}})
-        report = write_report(
-            summarize(rows), out_dir, name, {**meta, **_durations(root, start, run_id)}, curve
-        )
+    out_dir, curve = args.report_dir or root, args.experiment == "fewshot"
+    trainings = list(dict.fromkeys(cell.evaluation.training for cell in cells))
+    for training in tqdm(trainings, desc="demos and merged datasets", unit="policy"):
+        workspace.dataset(training)  # in this process, one at a time, before the workers share them
+
+    def evaluate_policy(training) -> dict[protocols.Cell, dict]:
+        mine = [cell for cell in cells if cell.evaluation.training == training]
+        return {cell: workspace.evaluate(cell.evaluation) for cell in mine}
+
+    results: dict[protocols.Cell, dict] = {}
+    with (
+        ThreadPoolExecutor(args.workers) as pool,
+        tqdm(total=len(cells), desc=f"experiment {args.experiment}", unit="cell") as bar,
+    ):
+        for done in as_completed([pool.submit(evaluate_policy, t) for t in trainings]):
+            results.update(done.result())
+            bar.update(len(done.result()))
+            rows = [
+                {
+                    "group": c.group,
+                    "kind": c.kind,
+                    **{k: v for k, v in results[c].items() if k != "success_rate"},
+                }
+                for c in cells
+                if c in results
+            ]
+            report = write_report(
+                summarize(rows), out_dir, name, {**meta, **_durations(root, start, run_id)}, curve
+            )
     print(f"\n{TITLES[args.experiment]} ({args.scale} scale)\n")
     print(report["table_markdown"])
     print(f"report: {out_dir / name}.{{json,md,png}}")

@@ -83,11 +83,14 @@ def _short_hash(parts: list[str]) -> str:
 class Workspace:
     """One experiment's folder: demos/, merged/, train/, eval/ and logs/, shared by all its cells."""
 
-    def __init__(self, root: Path, scale: Scale, galr: str):
+    def __init__(self, root: Path, scale: Scale, galr: str, threads: int | None = None):
+        """`threads`: torch threads of each training and evaluation (None: their own choice)."""
         self.root, self.scale, self.galr = Path(root), scale, galr
         self._check_settings()
         self.env = {**os.environ, "HF_HUB_OFFLINE": os.environ.get("HF_HUB_OFFLINE", "1")}
         self.env.setdefault("MUJOCO_GL", "egl")
+        if threads is not None:
+            self.env["OMP_NUM_THREADS"] = str(threads)
 
     def _check_settings(self) -> None:
         """Cell names encode neither the scale nor the GaLR checkpoint, so a folder made with others (or
@@ -137,6 +140,12 @@ class Workspace:
             )
         return out
 
+    def dataset(self, training: Training) -> Path:
+        """What the policy trains on: its one embodiment's demos, or all of them merged."""
+        if training.condition == "wo_cotrain":
+            return self.demos(training.demos[0])
+        return self.merged(training.demos)
+
     # --- training ---------------------------------------------------------------------------------
     def checkpoint(self, training: Training) -> Path:
         """The trained policy's `pretrained_model` folder (trains it first if needed)."""
@@ -144,10 +153,7 @@ class Workspace:
         model = out / "checkpoints" / "last" / "pretrained_model"
         if model.exists():
             return model
-        if training.condition == "wo_cotrain":
-            dataset = self.demos(training.demos[0])
-        else:
-            dataset = self.merged(training.demos)
+        dataset = self.dataset(training)
         with atomic_directory(out, overwrite=True) as partial:
             args = [
                 "--policy.type=opfa",
@@ -166,8 +172,11 @@ class Workspace:
             # Its own loader and thread settings: the fastest measured (benchmarks/bench_training.py).
             self._run("lerobot-opfa", ["train", *args], log)
             (partial / "opfa_training.json").write_text(
-                json.dumps({"condition": training.condition, "demos": [d.name for d in training.demos]})
-            )
+                json.dumps(
+                    {"condition": training.condition, "demos": [d.name for d in training.demos],
+                     "commit": source_commit()}
+                )
+            )  # fmt: skip
         return model
 
     # --- evaluation -------------------------------------------------------------------------------
@@ -210,6 +219,10 @@ class Workspace:
             "successes": successes,
             "success_rate": sum(successes) / len(successes),
             "eval_seconds": round(time.monotonic() - start, 1),
+            "commit": source_commit(),
+            "training_commit": json.loads((model.parents[2] / "opfa_training.json").read_text()).get(
+                "commit"
+            ),
         }
         videos = sorted((scratch / "videos").rglob("*.mp4"))
         if videos:
@@ -231,6 +244,15 @@ class Workspace:
         if code != 0:
             tail = log.read_text()[-3000:]
             raise RuntimeError(f"{exe} failed (exit {code}); log {log}:\n{tail}")
+
+
+def source_commit() -> str | None:
+    """The git commit of the package's source (with `-dirty` for uncommitted changes), if it is a checkout."""
+    result = subprocess.run(
+        ["git", "describe", "--always", "--dirty", "--abbrev=40"],
+        cwd=Path(__file__).parent, capture_output=True, text=True,
+    )  # fmt: skip
+    return result.stdout.strip() or None if result.returncode == 0 else None
 
 
 def galr_identity(galr: str) -> str:

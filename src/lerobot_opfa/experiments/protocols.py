@@ -3,9 +3,14 @@ which embodiment to test where); `jobs.Workspace` runs the cells, `report` tabul
 
 - spatial: each embodiment's demos come from its own regions of the table; every embodiment is tested in
   the regions that only the others' demos cover (the paper's zero-shot table, spatial columns).
+- object: each embodiment's demos lift another object; every embodiment is tested on the others' objects
+  (the paper's zero-shot table, object columns).
 - fewshot: k demos of a new embodiment, co-trained with a full set of another's (the few-shot figure).
 - nine: nine embodiments, one region and eight demos each, tested on the whole table (the nine-embodiment
   figure).
+
+Every trained policy is also tested where it has data: each of its embodiments on its own demos' task and
+regions (`IN_DISTRIBUTION` cells). That ceiling tells a transfer failure from a policy that fails at all.
 """
 
 from __future__ import annotations
@@ -40,11 +45,16 @@ NINE_HANDS = (
 )
 
 
+TRANSFER, IN_DISTRIBUTION = "transfer", "in_distribution"
+"""Cell kinds: the experiment's measurement, and the policy tested on its own demos' task and regions."""
+
+
 @dataclass(frozen=True)
 class Cell:
     group: str
     """Column of the report (a task, a demo count, ...)."""
     evaluation: Evaluation
+    kind: str = TRANSFER
 
     @property
     def condition(self) -> str:
@@ -68,15 +78,31 @@ def _check_conditions(conditions: tuple[str, ...]) -> tuple[str, ...]:
     return conditions
 
 
+def in_distribution(group: str, training: Training) -> list[Cell]:
+    """The policy tested with each of its embodiments on that embodiment's own demos."""
+    return [
+        Cell(group, Evaluation(training, d.task, d.hand, d.regions), IN_DISTRIBUTION) for d in training.demos
+    ]
+
+
 def co_training(
-    group: str, task: str, demos: list[Demos], test_regions: list[tuple[str, ...]], conditions, seed: int
+    group: str, demos: list[Demos], tests: list[tuple[str, tuple[str, ...]]], conditions, seed: int
 ) -> list[Cell]:
-    """Every condition for one set of per-embodiment demos; embodiment i is tested in test_regions[i]."""
+    """Every condition for one set of per-embodiment demos; embodiment i is tested on tests[i], a (task,
+    regions) pair. Each policy's in-distribution cells come before its transfer cells."""
     cells = []
     for condition in conditions:
+        trainings = (
+            [Training(condition, (d,), seed) for d in demos]
+            if condition == "wo_cotrain"
+            else [Training(condition, tuple(demos), seed)]
+        )
+        for training in trainings:
+            cells += in_distribution(group, training)
         for i, d in enumerate(demos):
-            training = Training(condition, (d,) if condition == "wo_cotrain" else tuple(demos), seed)
-            cells.append(Cell(group, Evaluation(training, task, d.hand, test_regions[i])))
+            training = trainings[i] if condition == "wo_cotrain" else trainings[0]
+            task, regions = tests[i]
+            cells.append(Cell(group, Evaluation(training, task, d.hand, regions)))
     return cells
 
 
@@ -94,10 +120,31 @@ def spatial(
     for task, run_hands in runs:
         regions = split_regions(len(run_hands))
         demos = [Demos(task, h, r, scale.demos, seed) for h, r in zip(run_hands, regions, strict=True)]
-        unseen = [tuple(x for j, r in enumerate(regions) if j != i for x in r) for i in range(len(regions))]
+        unseen = [
+            (task, tuple(x for j, r in enumerate(regions) if j != i for x in r)) for i in range(len(regions))
+        ]
         group = task if run_hands == hands else f"{task}, {len(run_hands)} embodiments"
-        cells += co_training(group, task, demos, unseen, _check_conditions(conditions), seed)
+        cells += co_training(group, demos, unseen, _check_conditions(conditions), seed)
     return cells
+
+
+def objects(
+    scale: Scale,
+    tasks: tuple[str, ...],
+    hands: tuple[str, ...],
+    conditions: tuple[str, ...] = tuple(CONDITIONS),
+    seed: int = 0,
+) -> list[Cell]:
+    """Hand i's demos do tasks[i] (one skill, another object each) on the whole table; every hand is tested
+    on the next hand's object."""
+    if len(tasks) != len(hands) or len(set(tasks)) != len(tasks):
+        raise ValueError(
+            f"give one distinct task (object) per hand: {len(tasks)} tasks for {len(hands)} hands"
+        )
+    everywhere = tuple(REGIONS)
+    demos = [Demos(t, h, everywhere, scale.demos, seed) for t, h in zip(tasks, hands, strict=True)]
+    others = [(tasks[(i + 1) % len(tasks)], everywhere) for i in range(len(tasks))]
+    return co_training("/".join(tasks), demos, others, _check_conditions(conditions), seed)
 
 
 def fewshot(
@@ -116,6 +163,7 @@ def fewshot(
         new = Demos(task, new_hand, everywhere, k, seed)
         for condition in _check_conditions(conditions):
             training = Training(condition, (new,) if condition == "wo_cotrain" else (new, other), seed)
+            cells += in_distribution(str(k), training)  # the new hand's is the measurement itself
             cells.append(Cell(str(k), Evaluation(training, task, new_hand, everywhere)))
     return cells
 
@@ -130,5 +178,5 @@ def nine(
     """Each hand gets one region and `demos_per_hand` demos; all are tested on the whole table."""
     regions = split_regions(len(hands))
     demos = [Demos(task, h, r, demos_per_hand, seed) for h, r in zip(hands, regions, strict=True)]
-    everywhere = [tuple(REGIONS)] * len(hands)
-    return co_training(task, task, demos, everywhere, _check_conditions(conditions), seed)
+    everywhere = [(task, tuple(REGIONS))] * len(hands)
+    return co_training(task, demos, everywhere, _check_conditions(conditions), seed)

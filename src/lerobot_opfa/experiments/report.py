@@ -1,6 +1,10 @@
-"""Success tables and plots of an experiment: rates with Wilson 95% intervals, a Markdown table in the
-layout of the paper's (one block per embodiment, one row per condition, one column per group), and a PNG
-(bars, or curves over the demo count for the few-shot experiment)."""
+"""Success tables and plots of an experiment: rates with Wilson 95% intervals, Markdown tables in the
+layout of the paper's (one block per embodiment, one row per condition, one column per group) for the
+transfer cells and for the in-distribution ceiling beside them, and a PNG (bars with the ceiling marked,
+or curves over the demo count for the few-shot experiment).
+
+A transfer cell whose policy succeeds less than `CEILING` of the time on that embodiment's own demos
+measures a policy that fails, not a transfer: it is flagged."""
 
 from __future__ import annotations
 
@@ -9,8 +13,11 @@ import math
 from pathlib import Path
 
 from lerobot_opfa.experiments.jobs import CONDITION_LABELS
+from lerobot_opfa.experiments.protocols import IN_DISTRIBUTION, TRANSFER
 
 Z95 = 1.959964
+CEILING = 0.8
+FLAG = "†"
 
 
 def wilson_interval(successes: int, n: int) -> tuple[float, float]:
@@ -24,13 +31,19 @@ def wilson_interval(successes: int, n: int) -> tuple[float, float]:
 
 
 def summarize(cells: list[dict]) -> list[dict]:
-    """One row per evaluated cell with its rate and interval (cells carry group, condition, hand and
-    the per-episode successes)."""
+    """One row per evaluated cell with its rate and interval (cells carry group, condition, hand, the
+    per-episode successes and, optionally, kind and training); a transfer row also gets its policy's
+    in-distribution rate for that hand, when measured, and whether it reaches `CEILING`."""
     rows = []
     for cell in cells:
         wins, n = sum(cell["successes"]), len(cell["successes"])
         low, high = wilson_interval(wins, n)
-        rows.append({**cell, "episodes": n, "success_rate": wins / n, "ci95": [low, high]})
+        rows.append({"kind": TRANSFER, **cell, "episodes": n, "success_rate": wins / n, "ci95": [low, high]})
+    ceiling = {(r["training"], r["hand"]): r["success_rate"] for r in rows if r["kind"] == IN_DISTRIBUTION}
+    for row in rows:
+        rate = ceiling.get((row.get("training"), row["hand"]))
+        if row["kind"] == TRANSFER and rate is not None:
+            row.update(in_distribution_rate=rate, ceiling_ok=rate >= CEILING)
     return rows
 
 
@@ -54,7 +67,13 @@ def markdown_table(rows: list[dict]) -> str:
                     if (r["group"], r["condition"]) == (group, condition) and r["hand"] in members
                     for s in r["successes"]
                 ]
-                cells.append(_rate_text(sum(successes), len(successes)) if successes else "")
+                failed = any(
+                    r.get("ceiling_ok") is False
+                    for r in rows
+                    if (r["group"], r["condition"]) == (group, condition) and r["hand"] in members
+                )
+                text = _rate_text(sum(successes), len(successes)) if successes else ""
+                cells.append(f"{text} {FLAG}" if failed else text)
             lines.append(f"| {CONDITION_LABELS[condition]} | {' | '.join(cells)} |")
     return "\n".join(lines) + "\n"
 
@@ -72,6 +91,8 @@ def plot(rows: list[dict], out: Path, title: str, curve: bool = False) -> Path:
     import matplotlib.pyplot as plt
     import numpy as np
 
+    inside = {(r["group"], r["hand"], r["condition"]): r for r in rows if r["kind"] == IN_DISTRIBUTION}
+    rows = [r for r in rows if r["kind"] == TRANSFER]
     conditions = [c for c in CONDITION_LABELS if any(r["condition"] == c for r in rows)]
     fig, ax = plt.subplots(figsize=(max(6.0, 0.9 * len(rows) / max(1, len(conditions)) + 3), 4))
     if curve:
@@ -93,6 +114,10 @@ def plot(rows: list[dict], out: Path, title: str, curve: bool = False) -> Path:
             y = np.array([100 * r["success_rate"] if r else np.nan for r in found])
             err = np.array([_error_bar(r) for r in found]).T
             ax.bar(x, y, width, yerr=err, capsize=2, label=CONDITION_LABELS[condition])
+            ceiling = [inside.get((*k, condition)) for k in keys]
+            y = np.array([100 * r["success_rate"] if r else np.nan for r in ceiling])
+            label = "in distribution (own demos)" if j == 0 else None
+            ax.scatter(x, y, marker="_", s=300 * width, color="k", zorder=3, label=label)
         multiple_groups = len({k[0] for k in keys}) > 1
         labels = ["\n".join([h, *g.split(", ")]) if multiple_groups else h for g, h in keys]
         ax.set_xticks(range(len(keys)), labels, fontsize=8)
@@ -114,11 +139,50 @@ def _error_bar(row: dict | None) -> list[float]:
     return [100 * (rate - low), 100 * (high - rate)]
 
 
+def in_distribution_entries(rows: list[dict]) -> list[dict]:
+    """Each trained policy's success with each of its embodiments on its own demos."""
+    return [
+        {"group": r["group"], "condition": r["condition"], "hand": r["hand"], "task": r["task"],
+         "regions": r["regions"], "training": r["training"], "successes": sum(r["successes"]),
+         "episodes": r["episodes"], "success_rate": r["success_rate"], "ci95": r["ci95"]}
+        for r in rows
+        if r["kind"] == IN_DISTRIBUTION
+    ]  # fmt: skip
+
+
+def tables(rows: list[dict]) -> str:
+    """The transfer table, then the in-distribution one (the ceiling), as Markdown."""
+    transfer = [r for r in rows if r["kind"] == TRANSFER]
+    inside = [r for r in rows if r["kind"] == IN_DISTRIBUTION]
+    text = markdown_table(transfer)
+    if any(r.get("ceiling_ok") is False for r in transfer):
+        text += (
+            f"\n{FLAG} the policy succeeds less than {100 * CEILING:.0f} % of the time on this embodiment's "
+            "own demos (in distribution, below): a failing policy, not a transfer result.\n"
+        )
+    if inside:
+        text += "\nIn distribution (each policy on its own demos' task and regions):\n\n"
+        text += markdown_table(inside)
+    return text
+
+
 def write_report(rows: list[dict], out_dir: Path, name: str, meta: dict, curve: bool = False) -> dict:
     """`<name>.json`, `<name>.md` and `<name>.png` in `out_dir`; returns the JSON's content."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    table = markdown_table(rows)
-    report = {**meta, "results": rows, "table_markdown": table}
+    table = tables(rows)
+    inside = in_distribution_entries(rows)
+    at_ceiling = sum(e["successes"] >= CEILING * e["episodes"] for e in inside)
+    report = {
+        **meta,
+        "results": [r for r in rows if r["kind"] == TRANSFER],
+        "in_distribution": inside,
+        "in_distribution_at_ceiling": {
+            "threshold": CEILING,
+            "entries": len(inside),
+            "at_or_above": at_ceiling,
+        },
+        "table_markdown": table,
+    }
     (out_dir / f"{name}.json").write_text(json.dumps(report, indent=2))
     header = f"# {meta.get('title', name)}\n\nCommand: `{meta.get('command', '')}`\n\n"
     (out_dir / f"{name}.md").write_text(header + table)
