@@ -32,7 +32,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 
 from lerobot_opfa.experiments.jobs import Demos, Evaluation, Training, Workspace, galr_identity  # noqa: E402
 from lerobot_opfa.experiments.scales import SCALES, Scale  # noqa: E402
-from lerobot_opfa.resources import long_galr_checkpoint  # noqa: E402
+from lerobot_opfa.galr.checkpoints import packaged_path  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"
 TARGET = 0.9
@@ -125,7 +125,7 @@ def main() -> None:
     parser.add_argument("--tasks", default="press_button,lift")
     parser.add_argument("--spaces", default="raw,galr")
     parser.add_argument("--epochs", default="10,30,100,300")
-    parser.add_argument("--galr", default=str(long_galr_checkpoint()))
+    parser.add_argument("--galr", default=str(packaged_path("long")))
     parser.add_argument("--work", type=Path, default=Path("outputs/learnability"))
     args = parser.parse_args()
     commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True).stdout.strip()

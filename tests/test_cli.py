@@ -1,64 +1,159 @@
-"""`lerobot-opfa hands ...` as a user runs it: a real subprocess of the installed console script."""
+"""The `lerobot-opfa` command line as a user meets it: named checkpoints, one-line errors for mistakes,
+summaries of what was written, and start-up without the heavy libraries."""
 
 from __future__ import annotations
 
 import json
-import shutil
+import os
+import re
 import subprocess
 import sys
 
-import numpy as np
+os.environ.setdefault("MUJOCO_GL", "egl")
+
 import pytest
-from conftest import BUILTIN_HANDS
+
+from lerobot_opfa import cli
+from lerobot_opfa.envs import demos as demos_module
+from lerobot_opfa.galr import checkpoints
 
 
-def _cli(*args: str) -> subprocess.CompletedProcess:
-    exe = shutil.which("lerobot-opfa") or shutil.which(
-        "lerobot-opfa", path=str(__import__("pathlib").Path(sys.executable).parent)
+def one_error_line(capsys, argv: list[str]) -> str:
+    """Runs the CLI, expecting a user mistake: exit code 2 and exactly one line on stderr."""
+    assert cli.main(argv) == 2
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.startswith("error:")]
+    assert len(lines) == 1, lines
+    return lines[0]
+
+
+def test_packaged_checkpoints_are_listed_and_load_by_name(capsys):
+    assert cli.main(["galr", "list"]) == 0
+    out = capsys.readouterr().out
+    assert all(name in out for name in checkpoints.PACKAGED)
+    assert checkpoints.load("default").config.hand_names  # a real checkpoint, by name
+
+
+def test_galr_eval_by_name(tmp_path, capsys):
+    report = tmp_path / "eval.json"
+    argv = [
+        "galr",
+        "eval",
+        "--checkpoint",
+        "default",
+        "--hands",
+        "umi",
+        "--states",
+        "4",
+        "--json",
+        str(report),
+    ]
+    assert cli.main(argv) == 0
+    assert json.loads(report.read_text())["mean"]["joint_rmse_deg"] >= 0
+
+
+@pytest.mark.parametrize(
+    ("make", "expected"),
+    [
+        (lambda p: p.mkdir() or p, "is not a GaLR checkpoint folder (it has no config.json"),
+        (lambda p: p / "missing", "not found: not a packaged name (default, long), not a folder"),
+    ],
+    ids=["folder-without-checkpoint", "missing-folder"],
+)
+def test_a_checkpoint_that_is_not_there_is_one_line(tmp_path, capsys, make, expected):
+    folder = make(tmp_path / "ckpt")
+    line = one_error_line(
+        capsys, ["galr", "eval", "--checkpoint", str(folder), "--json", str(tmp_path / "x")]
     )
-    return subprocess.run([exe, *args], capture_output=True, text=True, timeout=300)
+    assert expected in line
 
 
-def test_hands_list_json():
-    result = _cli("hands", "list", "--json")
-    assert result.returncode == 0, result.stderr
-    rows = {row["name"]: row for row in json.loads(result.stdout)}
-    assert sorted(rows) == BUILTIN_HANDS
-    assert rows["umi"]["dof"] == 1 and rows["umi"]["joints"] == 2
-    assert rows["umi"]["fingers"] == ["palm", "thumb", "index"]
+def test_embed_names_the_shape_and_joint_order_it_needs(tmp_path, capsys):
+    import numpy as np
+
+    np.save(tmp_path / "q.npy", np.zeros((2, 5)))
+    argv = ["galr", "embed", "--checkpoint", "default", "--hand", "umi", "--joints", str(tmp_path / "q.npy")]
+    line = one_error_line(capsys, [*argv, "--out", str(tmp_path / "z.npy")])
+    assert "need shape (B, 1)" in line
 
 
-def test_hands_cloud_npz(tmp_path, user_allegro_spec):
-    out = tmp_path / "cloud.npz"
-    result = _cli(
-        "hands",
-        "cloud",
-        str(user_allegro_spec),
-        "--n-points",
-        "300",
-        "--batch",
-        "5",
-        "--seed",
-        "3",
-        "--out",
-        str(out),
+def record(tmp_path, *extra: str) -> list[str]:
+    return ["sim", "demos", "--task", "press_button", "--hand", "umi", "--episodes", "1", "--n-points", "32",
+            "--output-dir", str(tmp_path / "demos"), *extra]  # fmt: skip
+
+
+def test_sim_demos_refuses_an_existing_folder_unless_told(tmp_path, capsys):
+    assert cli.main(record(tmp_path, "--depth-cameras", "front,left")) == 0
+    assert "wrote" in capsys.readouterr().out
+    meta = json.loads((tmp_path / "demos" / "meta" / demos_module.META_FILE).read_text())
+    assert meta["depth_cameras"] == ["front", "left"]  # what the env rendered with
+    assert "pass --overwrite" in one_error_line(capsys, record(tmp_path))
+    assert cli.main(record(tmp_path, "--overwrite", "--pointcloud-source", "geometry")) == 0
+
+
+def test_sim_demos_without_a_success_fails_and_leaves_nothing(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(demos_module, "expert_episode", lambda env, seed, region: ([], False))
+    line = one_error_line(capsys, record(tmp_path, "--pointcloud-source", "geometry"))
+    assert (
+        "no expert episode of press_button with 'umi' succeeded in 3 attempts" in line and "sim show" in line
     )
-    assert result.returncode == 0, result.stderr
-    data = np.load(out)
-    assert data["points"].shape == (5, 300, 3) and data["points"].dtype == np.float32
-    assert data["labels"].shape == (5, 300, 2) and np.issubdtype(data["labels"].dtype, np.integer)
-    assert data["joints"].shape == (5, 16) and data["joints"].dtype == np.float32
+    assert not (tmp_path / "demos").exists() and list(tmp_path.iterdir()) == []
 
 
-@pytest.mark.parametrize("joints", ["open", "random"])
-def test_hands_show_png(tmp_path, joints):
-    out = tmp_path / "hand.png"
-    result = _cli("hands", "show", "umi", "--out", str(out), "--joints", joints)
-    assert result.returncode == 0, result.stderr
-    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+def test_merge_of_a_missing_folder_is_one_line_and_a_merge_says_what_it_wrote(tmp_path, capsys):
+    assert cli.main(record(tmp_path, "--pointcloud-source", "geometry")) == 0
+    missing = tmp_path / "not_recorded"
+    argv = [
+        "dataset",
+        "merge",
+        "--inputs",
+        str(tmp_path / "demos"),
+        str(missing),
+        "--output",
+        str(tmp_path / "m"),
+    ]
+    assert (
+        one_error_line(capsys, argv) == f"error: {missing}: not a LeRobotDataset folder (no meta/info.json)"
+    )
+    assert (
+        cli.main(["dataset", "merge", "--inputs", str(tmp_path / "demos"), "--output", str(tmp_path / "m")])
+        == 0
+    )
+    assert re.search(r"wrote .*/m: 1 episodes, \d+ frames of umi$", capsys.readouterr().out.strip())
 
 
-def test_unknown_hand_lists_builtins():
-    result = _cli("hands", "cloud", "no_such_hand", "--out", "x.npz")
-    assert result.returncode == 2
-    assert "unknown hand 'no_such_hand'" in result.stderr and "umi" in result.stderr
+def test_light_commands_do_not_import_torch_or_lerobot():
+    code = (
+        "import sys; from lerobot_opfa.cli import main; main(['hands', 'list']); main(['galr', 'list']); "
+        "heavy = [m for m in ('torch', 'lerobot', 'mujoco', 'gymnasium') if m in sys.modules]; "
+        "assert not heavy, heavy"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr[-2000:]
+
+
+def test_wheel_ships_checkpoints_and_hand_models_without_training_logs(tmp_path):
+    import zipfile
+    from pathlib import Path
+
+    root = Path(__file__).parents[1]
+    command = [
+        sys.executable,
+        "-m",
+        "pip",
+        "wheel",
+        "--no-deps",
+        "--no-build-isolation",
+        "-q",
+        "-w",
+        str(tmp_path),
+        str(root),
+    ]
+    result = subprocess.run(command, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr[-2000:]
+    (wheel,) = tmp_path.glob("lerobot_policy_opfa-*.whl")
+    names = zipfile.ZipFile(wheel).namelist()
+    for name in checkpoints.PACKAGED.values():
+        for file in checkpoints.CHECKPOINT_FILES:
+            assert f"lerobot_opfa/checkpoints/{name[0]}/{file}" in names
+    assert not [n for n in names if n.endswith("metrics.jsonl")]
+    assert "lerobot_opfa/hand_models/leap/spec.yaml" in names and "lerobot_policy_opfa/__init__.py" in names

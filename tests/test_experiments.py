@@ -193,6 +193,7 @@ def test_work_folder_refuses_to_resume_with_other_settings(tmp_path):
     toy, galr = get_scale("toy"), tmp_path / "galr"
     galr.mkdir()
     (galr / "model.safetensors").write_bytes(b"weights")
+    (galr / "config.json").write_text("{}")
     root = tmp_path / "work"
     Workspace(root, toy, str(galr))
     Workspace(root, toy, str(galr))  # same settings: resumes

@@ -490,15 +490,16 @@ def test_stock_diffusion_in_galr_space_then_joint_io(data, tmp_path):
 
 # --- the stock CLIs ------------------------------------------------------------------------------------
 def test_lerobot_train_then_eval_every_hand(data, tmp_path, monkeypatch):
-    """`lerobot-train` as a subprocess, then fine-tuning the checkpoint (LeRobot reconfigures its processors
-    by name); `lerobot-eval`'s entry point (in-process, same argv) runs an episode per hand."""
+    """`lerobot-train` as a subprocess, with no GaLR flag (the merged dataset names the GaLR its latents came
+    from), then fine-tuning the checkpoint (LeRobot reconfigures its processors by name); `lerobot-eval`'s
+    entry point (in-process, same argv) runs an episode per hand."""
     from lerobot.scripts import lerobot_eval
 
     out = tmp_path / "train"
     command = [
         str(Path(sys.executable).parent / "lerobot-train"), "--policy.type=opfa",
         "--dataset.repo_id=local/merged", f"--dataset.root={data / 'merged'}",
-        f"--policy.galr_path={data / 'galr'}", "--policy.device=cpu", "--policy.push_to_hub=false",
+        "--policy.device=cpu", "--policy.push_to_hub=false",
         "--policy.down_dims=[16,32]", "--policy.horizon=8", "--policy.n_action_steps=4",
         "--policy.pointcloud_widths=[16,32]", "--policy.pointcloud_feature_dim=16", "--policy.n_groups=4",
         "--steps=3", "--batch_size=4", "--save_freq=3", "--log_freq=1", "--num_workers=0",
@@ -509,7 +510,8 @@ def test_lerobot_train_then_eval_every_hand(data, tmp_path, monkeypatch):
     checkpoint = out / "checkpoints" / "last" / "pretrained_model"
     policy = OpfaPolicy.from_pretrained(checkpoint)
     assert policy.config.embodiments == HANDS and policy.config.latent_dim == 8
-    finetune = [command[0], f"--policy.path={checkpoint}", *command[2:6], "--policy.push_to_hub=false"]
+    assert policy.config.galr_path == str((data / "galr").resolve())
+    finetune = [command[0], f"--policy.path={checkpoint}", *command[2:5], "--policy.push_to_hub=false"]
     finetune += ["--steps=1", "--batch_size=4", "--num_workers=0", f"--output_dir={tmp_path / 'finetune'}"]
     result = subprocess.run(finetune, env=ENV, capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
@@ -525,6 +527,24 @@ def test_lerobot_train_then_eval_every_hand(data, tmp_path, monkeypatch):
         lerobot_eval.main()
         info = json.loads((tmp_path / f"eval_{hand}" / "eval_info.json").read_text())
         assert info["overall"]["n_episodes"] == 1
+
+
+def test_galr_of_a_policy_comes_from_its_flag_its_dataset_or_the_default(data, tmp_path):
+    from lerobot_opfa.policy.processor_opfa import policy_galr
+
+    def galr_path(dataset: str, flag: str | None = None) -> str:
+        config = OpfaConfig(**{**POLICY, "galr_path": flag})
+        policy_galr(config, data / dataset)
+        return config.galr_path
+
+    assert galr_path("merged") == str((data / "galr").resolve())  # the one its latents came from
+    assert galr_path("merged", str(data / "galr")) == str(data / "galr")
+    assert galr_path("inspire") == "default"  # a dataset without latents names none
+    torch.manual_seed(1)
+    other = tmp_path / "other_galr"
+    Galr(GalrConfig(**GALR, hands=[hand_record(load_hand(h)) for h in HANDS])).save_pretrained(other)
+    with pytest.raises(ValueError, match=f"--policy.galr_path={other} is not the GaLR the dataset's latents"):
+        galr_path("merged", str(other))
 
 
 @pytest.mark.parametrize(

@@ -14,27 +14,16 @@ import argparse
 import json
 from pathlib import Path
 
-import torch
 from tqdm import tqdm
 
-from lerobot_opfa.envs.regions import parse_regions
-from lerobot_opfa.experiments.jobs import Demos, Workspace
-from lerobot_opfa.experiments.protocols import TRANSFER, co_training
-from lerobot_opfa.experiments.report import markdown_table, plot, summarize
 from lerobot_opfa.experiments.scales import DEMO_SCALE
-from lerobot_opfa.galr.evaluate import evaluate_hand, held_out_joints, plot_reconstructions
-from lerobot_opfa.galr.model import Galr
-from lerobot_opfa.hands.plot import plot_clouds
-from lerobot_opfa.hands.registry import builtin_hands, load_hand
-from lerobot_opfa.hands.validate import fk_error_vs_mujoco
-from lerobot_opfa.resources import long_galr_checkpoint
 
 
 def add_command(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser("demo", help="run the pipeline end to end on a small default")
     parser.add_argument("--output-dir", type=Path, default=Path("outputs/demo"))
     parser.add_argument("--n-points", type=int, default=1024, help="points of the hand clouds drawn")
-    parser.add_argument("--galr", default=str(long_galr_checkpoint()), help="GaLR checkpoint (dir or repo)")
+    parser.add_argument("--galr", default="long", help="GaLR checkpoint: packaged name, folder or Hub repo")
     parser.add_argument(
         "--states", type=int, default=64, help="held-out states per hand for the GaLR round trip"
     )
@@ -51,7 +40,15 @@ def run(args: argparse.Namespace) -> int:
 
 
 def hands_table(args: argparse.Namespace) -> None:
-    galr = Galr.from_pretrained(args.galr).eval()
+    import torch
+
+    from lerobot_opfa.galr import checkpoints
+    from lerobot_opfa.galr.evaluate import evaluate_hand, held_out_joints, plot_reconstructions
+    from lerobot_opfa.hands.plot import plot_clouds
+    from lerobot_opfa.hands.registry import builtin_hands, load_hand
+    from lerobot_opfa.hands.validate import fk_error_vs_mujoco
+
+    galr = checkpoints.load(args.galr)
     rows = []
     for name in tqdm(list(builtin_hands()), desc="hands", unit="hand"):
         hand = load_hand(name)
@@ -79,6 +76,11 @@ def hands_table(args: argparse.Namespace) -> None:
 
 def policy_table(args: argparse.Namespace) -> None:
     """Demos -> merge -> train (OPFA) -> lerobot-eval per embodiment, in the demos' region."""
+    from lerobot_opfa.envs.regions import parse_regions
+    from lerobot_opfa.experiments.jobs import Demos, Workspace
+    from lerobot_opfa.experiments.protocols import TRANSFER, co_training
+    from lerobot_opfa.experiments.report import markdown_table, plot, summarize
+
     hands = [h.strip() for h in args.hands.split(",") if h.strip()]
     region = tuple(parse_regions(args.region))
     demos = [Demos(args.task, h, region, DEMO_SCALE.demos) for h in hands]

@@ -1,3 +1,5 @@
-"""LeRobot discovers plugins by distribution name (`lerobot_policy_*`); importing this registers OPFA."""
+"""LeRobot discovers plugins by distribution name (`lerobot_policy_*`); importing this registers OPFA: the
+`opfa` env type and gymnasium ids, and the `opfa` policy with its processor steps."""
 
-import lerobot_opfa  # noqa: F401
+from lerobot_opfa.envs import config as _env_config  # noqa: F401
+from lerobot_opfa.policy import normalization as _policy  # noqa: F401

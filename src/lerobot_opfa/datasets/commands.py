@@ -46,22 +46,36 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
 def _merge(args: argparse.Namespace) -> None:
     from lerobot_opfa.datasets.merge import merge_datasets
 
-    merge_datasets(args.inputs, args.output, args.galr, args.repo_id, args.overwrite)
+    out = merge_datasets(args.inputs, args.output, args.galr, args.repo_id, args.overwrite)
+    print(f"wrote {_summary(out)}" + (f"; latents cached with GaLR {args.galr}" if args.galr else ""))
 
 
 def _latent(args: argparse.Namespace) -> None:
     from lerobot_opfa.datasets.latent import latent_dataset
 
-    latent_dataset(args.input, args.output, args.overwrite)
+    print(f"wrote {_summary(latent_dataset(args.input, args.output, args.overwrite))}")
 
 
 def _synthetic(args: argparse.Namespace) -> None:
     from lerobot_opfa.datasets.synthetic import write_synthetic_dataset
 
     write_synthetic_dataset(args.output, args.hand, args.episodes, args.frames, args.n_points, seed=args.seed)
+    print(f"wrote {_summary(args.output)}")
 
 
 def _convert(args: argparse.Namespace) -> None:
     from lerobot_opfa.policy.stock_io import convert_policy_io
 
     convert_policy_io(args.policy, args.galr, args.output, args.hand)
+    print(f"wrote {args.output}: the policy of {args.policy} with a joint-space interface")
+
+
+def _summary(root: Path) -> str:
+    """'<root>: N episodes, M frames of <hands>' from the dataset's own metadata."""
+    import json
+
+    info = json.loads((Path(root) / "meta" / "info.json").read_text())
+    embodiment = info["features"].get("observation.embodiment", {}).get("names") or [info.get("robot_type")]
+    return (
+        f"{root}: {info['total_episodes']} episodes, {info['total_frames']} frames of {', '.join(embodiment)}"
+    )

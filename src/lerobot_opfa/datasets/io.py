@@ -36,7 +36,7 @@ def atomic_directory(output: Path | str, overwrite: bool = False) -> Iterator[Pa
     on any error it is deleted."""
     output = Path(output).resolve()
     if output.exists() and not overwrite:
-        raise FileExistsError(f"{output} exists; pass overwrite to replace it")
+        raise FileExistsError(f"{output} exists; pass --overwrite (overwrite=True) to replace it")
     output.parent.mkdir(parents=True, exist_ok=True)
     tag = uuid.uuid4().hex[:8]
     partial = output.parent / f".{output.name}.partial-{tag}"

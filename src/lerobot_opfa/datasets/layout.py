@@ -22,7 +22,8 @@ from lerobot_opfa.policy.configuration_opfa import OBS_EMBODIMENT
 
 LATENT_PREFIX = "z"
 OPFA_META_FILE = "meta/opfa.json"
-"""Written by the merge tool: the fingerprint of the GaLR that computed the cached latents."""
+"""Written by the merge tool: its inputs and, with cached latents, the GaLR that computed them (`galr`, as
+given to the merge, and `galr_fingerprint`)."""
 
 
 class JointNameError(ValueError):
@@ -111,6 +112,12 @@ def split_native_names(names: list[str], spec: HandSpec) -> tuple[list[str], lis
     return wrist, hand
 
 
+def merge_record(root: Path | str | None) -> dict:
+    """What the merge tool recorded about a dataset (empty for any other dataset)."""
+    meta = Path(root) / OPFA_META_FILE if root is not None else None
+    return json.loads(meta.read_text()) if meta is not None and meta.is_file() else {}
+
+
 def read_layout(
     features: dict, robot_type: str | None = None, root: Path | str | None = None, hands=None
 ) -> DatasetLayout:
@@ -130,10 +137,7 @@ def read_layout(
         wrist, rest = names[: starts[0]], names[starts[0] + len(universal) :]
         if rest and rest != latent_names(len(rest)):
             raise JointNameError(f"unexpected entries after the universal joints: {rest}")
-        meta = Path(root) / OPFA_META_FILE if root is not None else None
-        fingerprint = (
-            json.loads(meta.read_text()).get("galr_fingerprint") if meta and meta.is_file() else None
-        )
+        fingerprint = merge_record(root).get("galr_fingerprint")
         return DatasetLayout("merged", embodiments, wrist, [], len(rest), fingerprint)
     spec = identify_hand(names, robot_type, hands)
     wrist, joints = split_native_names(names, spec)

@@ -41,6 +41,8 @@ class _Input:
 
 
 def _open(root: Path, hands: list[str] | None) -> _Input:
+    if not (root / "meta" / "info.json").is_file():
+        raise ValueError(f"{root}: not a LeRobotDataset folder (no meta/info.json)")
     meta = LeRobotDatasetMetadata(f"local/{root.name}", root=root)
     layout = read_layout(meta.features, meta.robot_type, root, hands)
     if layout.kind != "native":
@@ -122,9 +124,10 @@ def merge_datasets(
         merged.finalize()
         meta = {"embodiments": embodiments, "inputs": [str(i.root) for i in opened], "latent_dim": latent_dim}
         if galr is not None:
+            from lerobot_opfa.galr import checkpoints
             from lerobot_opfa.policy.galr_ref import galr_fingerprint
 
-            meta |= {"galr": str(galr_path), "galr_fingerprint": galr_fingerprint(galr)}
+            meta |= {"galr": checkpoints.record(galr_path), "galr_fingerprint": galr_fingerprint(galr)}
         (partial / OPFA_META_FILE).write_text(json.dumps(meta, indent=2))
     logger.info("merged %d frames of %s into %s", total, embodiments, output)
     return Path(output)

@@ -21,6 +21,7 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     demos.add_argument("--n-points", type=int, default=1024)
     demos.add_argument("--pointcloud-source", choices=["depth", "geometry"], default="depth")
     demos.add_argument("--depth-cameras", default="front", help="comma-separated: front, left, right")
+    demos.add_argument("--overwrite", action="store_true", help="replace an existing --output-dir")
     demos.set_defaults(func=_demos)
 
     show = sim.add_parser(
@@ -44,11 +45,14 @@ def _scene_args(parser: argparse.ArgumentParser) -> None:
 def _demos(args: argparse.Namespace) -> int:
     from lerobot_opfa.envs.demos import record_demos
 
-    dataset = record_demos(
+    meta = record_demos(
         args.task, args.hand, args.episodes, args.output_dir, args.regions, args.seed,
-        args.repo_id, args.n_points, args.pointcloud_source, args.depth_cameras,
+        args.repo_id, args.n_points, args.pointcloud_source, args.depth_cameras, args.overwrite,
     )  # fmt: skip
-    print(f"{args.output_dir}: {dataset.meta.total_episodes} episodes, {dataset.meta.total_frames} frames")
+    print(
+        f"wrote {args.output_dir}: {meta.total_episodes} episodes, {meta.total_frames} frames of "
+        f"{args.task} with {meta.robot_type}"
+    )
     return 0
 
 

@@ -8,10 +8,11 @@ import logging
 from pathlib import Path
 
 import numpy as np
-from lerobot.datasets.lerobot_dataset import LeRobotDataset
+from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 from tqdm import tqdm
 
+from lerobot_opfa.datasets.io import atomic_directory
 from lerobot_opfa.envs.config import ENV_STATE_DIM, EPISODE_STEPS, OBS_POINTCLOUD
 from lerobot_opfa.envs.env import OpfaSimEnv
 from lerobot_opfa.envs.experts import ScriptedExpert
@@ -81,8 +82,11 @@ def record_demos(
     n_points: int = 1024,
     pointcloud_source: str = "depth",
     depth_cameras: str = "front",
-) -> LeRobotDataset:
-    """Record `episodes` successful expert episodes, cycling through the regions, into `output_dir`."""
+    overwrite: bool = False,
+) -> LeRobotDatasetMetadata:
+    """Record `episodes` successful expert episodes, cycling through the regions, into `output_dir`, which
+    appears whole or not at all (and only with `overwrite` replaces an existing folder). No successful
+    episode at all is an error."""
     region_names = parse_regions(regions)
     env = OpfaSimEnv(
         task,
@@ -91,12 +95,27 @@ def record_demos(
         obs_type="pointcloud_state",
         pointcloud_source=pointcloud_source,
         n_points=n_points,
+        depth_cameras=depth_cameras,
     )
+    try:
+        with atomic_directory(output_dir, overwrite) as partial:
+            _record(env, episodes, partial, region_names, seed, repo_id)
+    finally:
+        env.close()
+    return LeRobotDatasetMetadata(repo_id or _repo_id(env), root=output_dir)
+
+
+def _repo_id(env: OpfaSimEnv) -> str:
+    return f"local/opfa_{env.task.name}_{env.hand_model.name}"
+
+
+def _record(env: OpfaSimEnv, episodes: int, root: Path, region_names: list[str], seed: int, repo_id) -> None:
+    task = env.task.name
     dataset = LeRobotDataset.create(
-        repo_id=repo_id or f"local/opfa_{task}_{env.hand_model.name}",
+        repo_id=repo_id or _repo_id(env),
         fps=env.metadata["render_fps"],
         features=dataset_features(env),
-        root=output_dir,
+        root=root,
         robot_type=env.hand_model.name,
         use_videos=False,
     )
@@ -116,8 +135,13 @@ def record_demos(
                 {"episode_index": len(records), "region": region, "seed": episode_seed, "length": len(frames)}
             )
             bar.update(1)
+    if not records:
+        raise ValueError(
+            f"no expert episode of {task} with '{env.hand_model.name}' succeeded in {attempts} attempts; "
+            f"watch one with `lerobot-opfa sim show --task {task} --hand {env.hand_model.spec.path} --video "
+            "expert.mp4` and check the spec's grasp pose"
+        )
     dataset.finalize()
-    env.close()
     if len(records) < episodes:
         logger.warning("only %d of %d episodes succeeded in %d attempts", len(records), episodes, attempts)
     meta = {
@@ -127,6 +151,7 @@ def record_demos(
         "seed": seed,
         "attempts": attempts,
         "hold_steps": HOLD_STEPS,
+        "pointcloud_source": env.pointcloud_source,
+        "depth_cameras": list(env.depth_cameras) if env.pointcloud_source == "depth" else [],
     }
-    (Path(output_dir) / "meta" / META_FILE).write_text(json.dumps({**meta, "episodes": records}, indent=2))
-    return dataset
+    (Path(root) / "meta" / META_FILE).write_text(json.dumps({**meta, "episodes": records}, indent=2))

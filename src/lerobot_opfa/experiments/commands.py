@@ -25,7 +25,6 @@ from lerobot_opfa.experiments import protocols
 from lerobot_opfa.experiments.jobs import CONDITIONS, Workspace, galr_identity, source_commit
 from lerobot_opfa.experiments.report import summarize, write_report
 from lerobot_opfa.experiments.scales import SCALES, get_scale
-from lerobot_opfa.resources import default_galr_checkpoint
 
 TITLES = {
     "spatial": "Spatial generalisation: success in regions covered only by the other embodiments' demos",
@@ -60,7 +59,9 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         parser.add_argument("--scale", default="small", choices=list(SCALES))
         parser.add_argument("--output-dir", type=Path, help="work folder (default outputs/experiments/NAME)")
         parser.add_argument("--report-dir", type=Path, help="where the JSON/MD/PNG go (default: output dir)")
-        parser.add_argument("--galr", default=str(default_galr_checkpoint()), help="GaLR checkpoint")
+        parser.add_argument(
+            "--galr", default="long", help="GaLR checkpoint: packaged name (galr list), folder or Hub repo"
+        )
         parser.add_argument("--conditions", default=",".join(CONDITIONS))
         parser.add_argument("--seed", type=int, default=0)
         parser.add_argument(

@@ -17,6 +17,7 @@ from pathlib import Path
 
 from lerobot_opfa.datasets.io import atomic_directory
 from lerobot_opfa.experiments.scales import Scale
+from lerobot_opfa.galr import checkpoints
 
 CONDITIONS = {"wo_cotrain": "raw", "naive_cotrain": "per_embodiment", "opfa": "galr"}
 """The paper's three conditions -> the policy's `action_space`."""
@@ -85,7 +86,7 @@ class Workspace:
 
     def __init__(self, root: Path, scale: Scale, galr: str, threads: int | None = None):
         """`threads`: torch threads of each training and evaluation (None: their own choice)."""
-        self.root, self.scale, self.galr = Path(root), scale, galr
+        self.root, self.scale, self.galr = Path(root), scale, checkpoints.resolve(galr)
         self._check_settings()
         self.env = {**os.environ, "HF_HUB_OFFLINE": os.environ.get("HF_HUB_OFFLINE", "1")}
         self.env.setdefault("MUJOCO_GL", "egl")
@@ -122,11 +123,10 @@ class Workspace:
         if not (out / "meta" / "info.json").exists():
             from lerobot_opfa.envs.demos import record_demos
 
-            with atomic_directory(out, overwrite=True) as partial:
-                record_demos(
-                    spec.task, spec.hand, spec.episodes, partial, ",".join(spec.regions), spec.seed,
-                    f"local/{spec.name}", self.scale.n_points, "geometry",
-                )  # fmt: skip
+            record_demos(
+                spec.task, spec.hand, spec.episodes, out, ",".join(spec.regions), spec.seed,
+                f"local/{spec.name}", self.scale.n_points, "geometry", overwrite=True,
+            )  # fmt: skip
         return out
 
     def merged(self, specs: tuple[Demos, ...]) -> Path:
@@ -260,7 +260,7 @@ def galr_identity(galr: str) -> str:
     id by name."""
     import hashlib
 
-    weights = Path(galr) / "model.safetensors"
+    weights = Path(checkpoints.resolve(galr)) / "model.safetensors"
     if weights.is_file():
         return "sha256:" + hashlib.sha256(weights.read_bytes()).hexdigest()
     return galr

@@ -1,23 +1,29 @@
-"""`lerobot-opfa galr ...`: pretrain, evaluate, embed joints, decode latents."""
+"""`lerobot-opfa galr ...`: list the packaged checkpoints, pretrain, evaluate, embed joints, decode latents.
+
+A checkpoint is named as `galr_ref.load_galr` takes it: a packaged name (`galr list`), a folder or a Hub
+repo id. Torch and the model load only in the commands that use them."""
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import numpy as np
-import torch
+from lerobot_opfa.galr import checkpoints
 
-from lerobot_opfa.galr.data import SHARES
-from lerobot_opfa.galr.model import Galr, GalrConfig
-from lerobot_opfa.hands.registry import builtin_hands
+if TYPE_CHECKING:
+    from lerobot_opfa.galr.model import GalrConfig
+
+CHECKPOINT_HELP = "a packaged name (see `galr list`), a checkpoint folder or a Hub repo id"
 
 
 def add_commands(subparsers: argparse._SubParsersAction) -> None:
     galr = subparsers.add_parser("galr", help="GaLR: pretrain, evaluate, embed, decode").add_subparsers(
         dest="galr_command", required=True
     )
+    galr.add_parser("list", help="the packaged GaLR checkpoints").set_defaults(func=_list)
+
     pre = galr.add_parser("pretrain", help="pretrain GaLR on random reachable states of the hands")
     pre.add_argument(
         "--hands", default="all", help="'all' (the built-ins) or comma-separated names / spec paths"
@@ -25,7 +31,10 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     pre.add_argument("--steps", type=int, default=3000)
     pre.add_argument("--batch-size", type=int, default=44)
     pre.add_argument(
-        "--shares", choices=SHARES, default="dof", help="batch shares per hand: by joint count, or equal"
+        "--shares",
+        choices=("dof", "even"),
+        default="dof",
+        help="batch shares per hand: by joint count, or equal",
     )
     pre.add_argument("--lr", type=float, default=1e-3)
     pre.add_argument("--output-dir", type=Path, required=True)
@@ -45,7 +54,7 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     ev = galr.add_parser(
         "eval", help="joint RMSE, fingertip error and throughput per hand on held-out states"
     )
-    ev.add_argument("--checkpoint", required=True, help="a local directory or a Hub repo id")
+    ev.add_argument("--checkpoint", required=True, help=CHECKPOINT_HELP)
     ev.add_argument(
         "--hands", default="all", help="'all' (the checkpoint's registry) or comma-separated names"
     )
@@ -63,8 +72,12 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     curves.add_argument("--out", type=Path, required=True)
     curves.set_defaults(func=_curves)
 
-    embed = galr.add_parser("embed", help="joint vectors (.npy, (B, dof)) -> latents (.npy, (B, d))")
-    embed.add_argument("--checkpoint", required=True)
+    embed = galr.add_parser(
+        "embed",
+        help="joint vectors (.npy, (B, dof) in the spec's actuated-joint order, see `hands list`) -> latents "
+        "(.npy, (B, d))",
+    )
+    embed.add_argument("--checkpoint", required=True, help=CHECKPOINT_HELP)
     embed.add_argument("--hand", required=True)
     embed.add_argument("--joints", type=Path, required=True)
     embed.add_argument("--out", type=Path, required=True)
@@ -73,15 +86,23 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     decode = galr.add_parser(
         "decode", help="latents (.npy, (B, d)) -> the hand's joint vectors (.npy, (B, dof))"
     )
-    decode.add_argument("--checkpoint", required=True)
+    decode.add_argument("--checkpoint", required=True, help=CHECKPOINT_HELP)
     decode.add_argument("--hand", required=True)
     decode.add_argument("--latents", type=Path, required=True)
     decode.add_argument("--out", type=Path, required=True)
     decode.set_defaults(func=_decode)
 
 
+def _list(args: argparse.Namespace) -> int:
+    for entry in checkpoints.listing():
+        print(f"{entry['name']:<9}{entry['description']}\n{'':<9}{entry['path']}")
+    return 0
+
+
 def parse_overrides(pairs: list[str]) -> GalrConfig:
     """`key=value` strings -> a GalrConfig, with values typed like the fields' defaults."""
+    from lerobot_opfa.galr.model import GalrConfig
+
     defaults = GalrConfig()
     values = {}
     for pair in pairs:
@@ -102,6 +123,7 @@ def _hand_list(hands: str, available: list[str]) -> list[str]:
 
 def _pretrain(args: argparse.Namespace) -> int:
     from lerobot_opfa.galr.train import PretrainConfig, pretrain
+    from lerobot_opfa.hands.registry import builtin_hands
 
     config = PretrainConfig(
         output_dir=args.output_dir,
@@ -127,7 +149,7 @@ def _pretrain(args: argparse.Namespace) -> int:
 def _eval(args: argparse.Namespace) -> int:
     from lerobot_opfa.galr.evaluate import evaluate, plot_errors, plot_reconstructions
 
-    galr = Galr.from_pretrained(args.checkpoint).eval()
+    galr = checkpoints.load(args.checkpoint)
     hands = _hand_list(args.hands, galr.config.hand_names)
     report = evaluate(galr, hands, args.states, args.seed, out=args.json)
     print(f"mean joint RMSE {report['mean']['joint_rmse_deg']:.2f} deg, "
@@ -147,19 +169,45 @@ def _curves(args: argparse.Namespace) -> int:
     return 0
 
 
+def _array(path: Path, what: str, width: int, names: str):
+    """A (B, width) float array from a .npy file, or a one-line error saying what was expected."""
+    import numpy as np
+    import torch
+
+    if not path.is_file():
+        raise ValueError(f"{path}: no such file ({what}: a .npy array of shape (B, {width}))")
+    array = np.load(path)
+    if array.ndim == 1:
+        array = array[None]
+    if array.ndim != 2 or array.shape[1] != width:
+        raise ValueError(f"{path} holds shape {array.shape}; {what} need shape (B, {width}): {names}")
+    return torch.from_numpy(array).float()
+
+
 def _embed(args: argparse.Namespace) -> int:
-    galr = Galr.from_pretrained(args.checkpoint).eval()
+    import numpy as np
+    import torch
+
+    galr = checkpoints.load(args.checkpoint)
+    hand = galr.hand(args.hand)[0]
+    q = _array(args.joints, f"joints of '{hand.name}'", hand.dof, ", ".join(hand.joint_names))
     with torch.no_grad():
-        z = galr.encode_joints(args.hand, torch.from_numpy(np.load(args.joints)).float())
+        z = galr.encode_joints(args.hand, q)
     np.save(args.out, z.cpu().numpy())
     print(f"{args.out}: latents {tuple(z.shape)}")
     return 0
 
 
 def _decode(args: argparse.Namespace) -> int:
-    galr = Galr.from_pretrained(args.checkpoint).eval()
+    import numpy as np
+    import torch
+
+    galr = checkpoints.load(args.checkpoint)
+    galr.hand(args.hand)  # an unknown hand is an error before anything runs
+    dim = galr.config.latent_dim
+    z = _array(args.latents, "latents", dim, f"{dim} entries from `galr embed` with this checkpoint")
     with torch.no_grad():
-        q = galr.decode(torch.from_numpy(np.load(args.latents)).float(), args.hand)
+        q = galr.decode(z, args.hand)
     np.save(args.out, q.cpu().numpy())
     print(f"{args.out}: joints {tuple(q.shape)}")
     return 0

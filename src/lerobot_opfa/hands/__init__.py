@@ -1,19 +1,25 @@
-"""Hand models: specs, batched FK, reachable-state sampling and surface point clouds."""
+"""Hand models: specs, batched FK, reachable-state sampling and surface point clouds.
 
-from lerobot_opfa.hands.model import HandCloud, HandModel
-from lerobot_opfa.hands.registry import builtin_hands, load_hand, load_spec
-from lerobot_opfa.hands.spec import HandSpec, HandSpecError
-from lerobot_opfa.hands.universal import FINGERS, UNIVERSAL_JOINT_NAMES, UNIVERSAL_JOINTS
+The names below load on first use, so `lerobot-opfa hands list` and spec checks do not pay for torch."""
 
-__all__ = [
-    "FINGERS",
-    "UNIVERSAL_JOINTS",
-    "UNIVERSAL_JOINT_NAMES",
-    "HandCloud",
-    "HandModel",
-    "HandSpec",
-    "HandSpecError",
-    "builtin_hands",
-    "load_hand",
-    "load_spec",
-]
+from importlib import import_module
+
+_EXPORTS = {
+    "HandCloud": "model",
+    "HandModel": "model",
+    "builtin_hands": "registry",
+    "load_hand": "registry",
+    "load_spec": "registry",
+    "HandSpec": "spec",
+    "HandSpecError": "spec",
+    "FINGERS": "universal",
+    "UNIVERSAL_JOINTS": "universal",
+    "UNIVERSAL_JOINT_NAMES": "universal",
+}
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str):
+    if name not in _EXPORTS:
+        raise AttributeError(f"module 'lerobot_opfa.hands' has no attribute '{name}'")
+    return getattr(import_module(f"lerobot_opfa.hands.{_EXPORTS[name]}"), name)

@@ -6,13 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
-import numpy as np
-import torch
-
-from lerobot_opfa.hands import validate
-from lerobot_opfa.hands.plot import plot_clouds
-from lerobot_opfa.hands.registry import builtin_hands, hand_models_dir, load_hand
-from lerobot_opfa.hands.universal import universal_table_markdown
+from lerobot_opfa.hands.registry import builtin_hands, hand_models_dir, load_spec
 
 
 def add_commands(subparsers: argparse._SubParsersAction) -> None:
@@ -23,9 +17,7 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     listing.add_argument("--json", action="store_true", help="print JSON instead of a table")
     listing.set_defaults(func=_list)
 
-    hands.add_parser("joints", help="the universal joint table").set_defaults(
-        func=lambda _: print(universal_table_markdown())
-    )
+    hands.add_parser("joints", help="the universal joint table").set_defaults(func=_joints)
 
     cloud = hands.add_parser("cloud", help="point clouds of random reachable states, saved as .npz")
     cloud.add_argument("hand", help="built-in name or path to a spec.yaml")
@@ -46,24 +38,36 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     check = hands.add_parser("check", help="check a spec against its model (FK vs MuJoCo, couplings, poses)")
     check.add_argument("hand")
     check.add_argument("--png")
-    check.set_defaults(
-        func=lambda args: validate.main([args.hand] + (["--png", args.png] if args.png else []))
-    )
+    check.set_defaults(func=_check)
+
+
+def _check(args: argparse.Namespace) -> int:
+    from lerobot_opfa.hands import validate
+
+    return validate.main([args.hand] + (["--png", args.png] if args.png else []))
+
+
+def _joints(args: argparse.Namespace) -> int:
+    from lerobot_opfa.hands.universal import universal_table_markdown
+
+    print(universal_table_markdown())
+    return 0
 
 
 def _list(args: argparse.Namespace) -> int:
+    """From the specs alone (a spec names every movable joint: actuated or coupled), without the models."""
     rows = []
     for name in builtin_hands():
-        hand = load_hand(name)
+        spec = load_spec(name)
         rows.append(
             {
                 "name": name,
-                "kind": hand.spec.kind,
-                "dof": hand.dof,
-                "joints": len(hand.chain_joint_names),
-                "fingers": hand.spec.fingers,
-                "source": str(hand.spec.model_path.relative_to(hand_models_dir().parent)),
-                "description": hand.spec.description,
+                "kind": spec.kind,
+                "dof": len(spec.actuated_joints),
+                "joints": len(spec.actuated_joints) + len(spec.couplings),
+                "fingers": spec.fingers,
+                "source": str(spec.model_path.relative_to(hand_models_dir().parent)),
+                "description": spec.description,
             }
         )
     if args.json:
@@ -77,6 +81,11 @@ def _list(args: argparse.Namespace) -> int:
 
 
 def _cloud(args: argparse.Namespace) -> int:
+    import numpy as np
+    import torch
+
+    from lerobot_opfa.hands.registry import load_hand
+
     hand = load_hand(args.hand)
     q = hand.sample_joints(args.batch, torch.Generator().manual_seed(args.seed))
     cloud = hand.point_cloud(q, args.n_points, seed=args.seed)
@@ -93,6 +102,11 @@ def _cloud(args: argparse.Namespace) -> int:
 
 
 def _show(args: argparse.Namespace) -> int:
+    import torch
+
+    from lerobot_opfa.hands.plot import plot_clouds
+    from lerobot_opfa.hands.registry import load_hand
+
     hand = load_hand(args.hand)
     if args.joints == "random":
         q = hand.sample_joints(1, torch.Generator().manual_seed(args.seed))

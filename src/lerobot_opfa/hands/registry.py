@@ -4,10 +4,13 @@ from __future__ import annotations
 
 from functools import cache
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from lerobot_opfa.hands.model import HandModel
 from lerobot_opfa.hands.spec import HandSpec
 from lerobot_opfa.resources import resource_dir
+
+if TYPE_CHECKING:
+    from lerobot_opfa.hands.model import HandModel
 
 
 def hand_models_dir() -> Path:
@@ -40,6 +43,8 @@ def load_spec(hand: str | Path) -> HandSpec:
 
 @cache
 def _load_hand_cached(spec_path: Path, device: str) -> HandModel:
+    from lerobot_opfa.hands.model import HandModel  # torch and the model parsers: only when a model is built
+
     return HandModel.from_spec(spec_path, device=device)
 
 

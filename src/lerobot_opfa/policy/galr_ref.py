@@ -8,14 +8,16 @@ from functools import cache
 
 import torch
 
+from lerobot_opfa.galr import checkpoints
 from lerobot_opfa.galr.model import Galr
 from lerobot_opfa.hands.registry import builtin_hands
 
 
 @cache
-def load_galr(path: str) -> Galr:
-    """A GaLR checkpoint (local folder or Hub repo id), frozen, in eval mode; loaded once per process."""
-    galr = Galr.from_pretrained(path).eval()
+def load_galr(ref: str) -> Galr:
+    """A GaLR checkpoint (packaged name, local folder or Hub repo id), frozen, in eval mode; loaded once per
+    process."""
+    galr = checkpoints.load(ref)
     galr.requires_grad_(False)
     return galr
 

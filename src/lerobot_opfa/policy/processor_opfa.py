@@ -8,6 +8,7 @@ checkpoint (or a Hub repo) is self-contained.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 import uuid
@@ -29,7 +30,8 @@ from lerobot.processor.factory import make_policy_processor_pipelines
 from lerobot.utils.constants import ACTION, OBS_STATE
 
 from lerobot_opfa.datasets.io import read_columns
-from lerobot_opfa.datasets.layout import DatasetLayout, latent_names, read_layout
+from lerobot_opfa.datasets.layout import DatasetLayout, latent_names, merge_record, read_layout
+from lerobot_opfa.galr import checkpoints
 from lerobot_opfa.galr.model import Galr
 from lerobot_opfa.hands.registry import builtin_hands
 from lerobot_opfa.hands.universal import UNIVERSAL_INDEX, UNIVERSAL_JOINT_NAMES, UNIVERSAL_JOINTS
@@ -52,17 +54,46 @@ STATS_MAX_ENCODED_FRAMES = 4096
 """Frames encoded through the GaLR for z statistics when a dataset has no usable latent cache."""
 
 
-def policy_galr(config: OpfaConfig) -> Galr | None:
+def policy_galr(config: OpfaConfig, dataset_root: Path | str | None = None) -> Galr | None:
+    """The frozen GaLR of a `galr` policy. Without `--policy.galr_path` it is the one the dataset's cached
+    latents came from, else the packaged default; the choice is written into the config (and so saved with
+    the policy). A given checkpoint that did not make the dataset's latents is an error."""
     if config.action_space != "galr":
         return None
+    record = merge_record(dataset_root)
     if not config.galr_path:
-        raise ValueError("action_space 'galr' needs --policy.galr_path (a GaLR checkpoint folder or repo id)")
-    return load_galr(str(config.galr_path))
+        recorded = bool(record.get("galr_fingerprint"))
+        config.galr_path = _recorded_galr(record) if recorded else checkpoints.DEFAULT
+        source = "the one the dataset's latents came from" if recorded else "the default"
+        logger.info(f"GaLR checkpoint: {config.galr_path} ({source}; --policy.galr_path chooses another)")
+    galr = load_galr(str(config.galr_path))
+    if record.get("galr_fingerprint") not in (None, galr_fingerprint(galr)):
+        raise ValueError(
+            f"--policy.galr_path={config.galr_path} is not the GaLR the dataset's latents were cached with "
+            f"({record.get('galr')}); leave the flag out to use that one, or merge the demos again with "
+            f"--galr {config.galr_path}"
+        )
+    return galr
+
+
+def _recorded_galr(record: dict) -> str:
+    """The merge's GaLR as recorded, or a packaged checkpoint with its fingerprint (a path recorded on
+    another machine, or relative to another folder, is found again that way)."""
+    with contextlib.suppress(ValueError):
+        if galr_fingerprint(load_galr(record["galr"])) == record["galr_fingerprint"]:
+            return record["galr"]
+    for name in checkpoints.PACKAGED:
+        if galr_fingerprint(load_galr(name)) == record["galr_fingerprint"]:
+            return name
+    raise ValueError(
+        f"the dataset's latents were cached with GaLR '{record['galr']}', which is not here (and no packaged "
+        "checkpoint has its weights); pass --policy.galr_path"
+    )
 
 
 def resolve_config(config: OpfaConfig, dataset_meta: Any) -> DatasetLayout:
     """Fill the config's dataset-derived fields (embodiments, wrist names, latent size) from a dataset."""
-    galr = policy_galr(config)
+    galr = policy_galr(config, dataset_meta.root)
     layout = read_layout(
         dataset_meta.features,
         dataset_meta.robot_type,
@@ -182,14 +213,8 @@ def make_opfa_pre_post_processors(
     if meta is None:
         raise ValueError("opfa processors are built from the training dataset: pass dataset_meta")
     layout = resolve_config(config, meta)
-    galr = policy_galr(config)
-    cached = (
-        galr is not None
-        and layout.latent_dim == galr.config.latent_dim
-        and layout.galr_fingerprint == galr_fingerprint(galr)
-    )
-    if galr is not None and layout.latent_dim and not cached:
-        logger.warning("the dataset's cached latents come from another GaLR; encoding joints on the fly")
+    galr = policy_galr(config, meta.root)
+    cached = galr is not None and layout.latent_dim > 0  # policy_galr checked that this GaLR made them
     shared = dict(
         action_space=config.action_space,
         embodiments=list(config.embodiments),
