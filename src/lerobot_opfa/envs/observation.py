@@ -60,6 +60,11 @@ class DepthPointCloud:
             for (obj, name, _), value in zip(settings, saved, strict=True):
                 setattr(obj, name, value)
         self.renderer.enable_depth_rendering()
+        # Depth sees geoms only: a vendor model's sites (frames, sensor volumes) and tendons are drawings,
+        # not surfaces a sensor would see.
+        self.option = mujoco.MjvOption()
+        self.option.sitegroup[:] = 0
+        self.option.flags[mujoco.mjtVisFlag.mjVIS_TENDON] = 0
         self.cameras = [model.camera(f"depth_{name}").id for name in cameras]
         # pixel rays in the camera frame at unit depth (MuJoCo cameras look along -z with y up)
         self.rays = []
@@ -72,7 +77,7 @@ class DepthPointCloud:
     def __call__(self, data: mujoco.MjData, rng: np.random.Generator) -> np.ndarray:
         clouds = []
         for cam, rays in zip(self.cameras, self.rays, strict=True):
-            self.renderer.update_scene(data, camera=cam)
+            self.renderer.update_scene(data, camera=cam, scene_option=self.option)
             depth = self.renderer.render().reshape(-1)
             rot, pos = data.cam_xmat[cam].reshape(3, 3), data.cam_xpos[cam]
             # most pixels see the table: keep those above it before transforming all three coordinates

@@ -81,10 +81,27 @@ def _urdf_for_mujoco(text: bytes, path: Path) -> tuple[str, dict[str, bytes]]:
     return ET.tostring(root, encoding="unicode"), assets
 
 
+class _JointTypes(dict):
+    """pytorch-kinematics' joint-type map keyed by int: it looks types up with the `np.int32` a model
+    holds, which mujoco>=4's enum keys do not match."""
+
+    def __getitem__(self, key):
+        return super().__getitem__(int(key))
+
+
 def _load_mjcf(path: Path) -> ModelFile:
-    # pytorch-kinematics keys its joint-type map by MuJoCo enums, which mujoco>=4 no longer hashes like
-    # the ints its models return; add int keys so both work.
-    pk.mjcf.JOINT_TYPE_MAP.update({int(k): v for k, v in list(pk.mjcf.JOINT_TYPE_MAP.items())})
+    root = ET.parse(path).getroot()
+    if root.tag != "mujoco":
+        include = f'<include file="{path.name}"/>'
+        if root.find("worldbody") is None:  # bodies only: they go inside the wrapper's worldbody
+            include = f"<worldbody>{include}</worldbody>"
+        raise ModelFileError(
+            f"{path}: a <{root.tag}> fragment, not a model (<mujoco>); name a wrapper file beside it in the "
+            f'spec: <mujoco model="hand">{include}</mujoco> (with the fragment\'s <compiler meshdir> and '
+            "<asset> if it needs them)"
+        )
+    if not isinstance(pk.mjcf.JOINT_TYPE_MAP, _JointTypes):
+        pk.mjcf.JOINT_TYPE_MAP = _JointTypes({int(k): v for k, v in pk.mjcf.JOINT_TYPE_MAP.items()})
     model = mujoco.MjModel.from_xml_path(str(path))
     spec = mujoco.MjSpec.from_file(str(path))
     xml = spec.to_xml()
