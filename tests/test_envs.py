@@ -49,19 +49,21 @@ def test_user_hand_loads_into_a_scene(user_allegro_spec):
 
 @pytest.mark.parametrize("task", TASK_NAMES)
 def test_success_detection(task):
-    """A scripted success is detected from the simulator state; holding still is not a success."""
+    """A scripted success is detected from the simulator state, and the hand touched the task's object on
+    the way; holding still is neither."""
     env = OpfaSimEnv(task, "umi", obs_type="state")
     env.reset(seed=3)
-    expert, success = ScriptedExpert(env, np.random.default_rng(3)), False
+    expert, success, touched = ScriptedExpert(env, np.random.default_rng(3)), False, False
     while not (expert.done or success):
         _, _, success, _, info = env.step(expert.act())
-    assert success and info["is_success"]
+        touched = touched or env.task.touched(env.scene, env.data)
+    assert success and info["is_success"] and touched
 
     obs, _ = env.reset(seed=3)
     hold = obs["agent_pos"].copy()
     for _ in range(40):
         _, _, terminated, _, info = env.step(hold)
-        assert not terminated and not info["is_success"]
+        assert not terminated and not info["is_success"] and not env.task.touched(env.scene, env.data)
     env.close()
 
 

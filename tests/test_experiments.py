@@ -15,7 +15,8 @@ import torch
 from lerobot_opfa.cli import main
 from lerobot_opfa.envs.regions import REGIONS
 from lerobot_opfa.experiments import protocols
-from lerobot_opfa.experiments.report import markdown_table, summarize, tables, wilson_interval
+from lerobot_opfa.experiments.failures import OUTCOMES
+from lerobot_opfa.experiments.report import markdown_table, summarize, tables, wilson_interval, write_report
 from lerobot_opfa.experiments.scales import get_scale
 
 
@@ -128,12 +129,27 @@ def test_transfer_cell_of_a_policy_failing_in_distribution_is_flagged():
     assert "†" not in tables(rows)
 
 
+def test_report_of_perfect_cells(tmp_path):
+    """50/50 cells: the interval holds the rate despite rounding, and the plot draws (error bars >= 0)."""
+    for wins in range(51):
+        low, high = wilson_interval(wins, 50)
+        assert low <= wins / 50 <= high
+    rows = summarize([
+        {"group": "lift", "hand": h, "condition": c, "kind": k, "training": f"{c}-{h}", "task": "lift",
+         "regions": ["mid_center"], "successes": [True] * 50}
+        for h in ("inspire", "xhand") for c in ("wo_cotrain", "opfa") for k in ("transfer", "in_distribution")
+    ])  # fmt: skip
+    report = write_report(rows, tmp_path, "perfect", {"title": "t"})
+    assert report["in_distribution_at_ceiling"] == {"threshold": 0.8, "entries": 4, "at_or_above": 4}
+    assert (tmp_path / "perfect.png").read_bytes()[:4] == b"\x89PNG"
+
+
 def test_spatial_experiment_toy_end_to_end_and_resume(tmp_path, capsys):
     work, report = tmp_path / "work", tmp_path / "report"
     argv = [
         "experiment", "spatial", "--scale", "toy", "--tasks", "press_button", "--hands", "umi,inspire",
         "--more-hands", "", "--conditions", "wo_cotrain,opfa", "--output-dir", str(work),
-        "--report-dir", str(report), "--workers", "2",
+        "--report-dir", str(report), "--workers", "2", "--failure-episodes", "1",
     ]  # fmt: skip
     assert main(argv) == 0
     result = json.loads((report / "spatial_toy.json").read_text())
@@ -151,6 +167,10 @@ def test_spatial_experiment_toy_end_to_end_and_resume(tmp_path, capsys):
     assert all(0 <= e["successes"] <= e["episodes"] == 2 for e in inside)
     assert set(next(e for e in inside if e["hand"] == "umi")["regions"]) == set(protocols.split_regions(2)[0])
     assert all("in_distribution_rate" in r and r["commit"] for r in rows)
+    assert all(
+        sorted(r["failure_modes"]) == sorted(OUTCOMES) and sum(r["failure_modes"].values()) == 1 for r in rows
+    )
+    assert "never touched the object (wrist)" in (report / "spatial_toy.md").read_text()
     assert (report / "spatial_toy.png").read_bytes()[:4] == b"\x89PNG"
     assert "| OPFA |" in (report / "spatial_toy.md").read_text()
     assert "w/o co-training" in capsys.readouterr().out

@@ -37,6 +37,8 @@ class Task:
 
     name: str
     description: str
+    object_body: str
+    """The body the hand acts on (what it must touch to do the task)."""
 
     def build(self, spec: mujoco.MjSpec) -> None:
         raise NotImplementedError
@@ -55,6 +57,10 @@ class Task:
 
     def success(self, scene: Scene, data: mujoco.MjData) -> bool:
         raise NotImplementedError
+
+    def touched(self, scene: Scene, data: mujoco.MjData) -> bool:
+        """Whether the hand is in contact with the task's object now."""
+        return _touching(scene, data, scene.model.body(self.object_body).id)
 
 
 def _free_body_state(data: mujoco.MjData, qpos_adr: int) -> np.ndarray:
@@ -78,13 +84,13 @@ class Lift(Task):
 
     name = "lift"
     description = "lift the can"
-    object_name = "can"
+    object_body = "can"
     radius, half_height, lift_height = 0.032, 0.06, 0.08
     mass = 0.35  # kg, a full 330 ml drink can (an empty one tips over at a fingertip's touch)
 
     def build(self, spec: mujoco.MjSpec) -> None:
-        body = spec.worldbody.add_body(name=self.object_name, pos=[0, 0, self.half_height])
-        body.add_freejoint(name=self.object_name)
+        body = spec.worldbody.add_body(name=self.object_body, pos=[0, 0, self.half_height])
+        body.add_freejoint(name=self.object_body)
         self.add_geom(body)
 
     def add_geom(self, body: mujoco.MjsBody) -> None:
@@ -92,7 +98,7 @@ class Lift(Task):
         _geom(body, [0.8, 0.15, 0.1, 1], type=CYLINDER, size=size, mass=self.mass)
 
     def bind(self, scene: Scene) -> None:
-        self.qpos = scene.model.jnt_qposadr[scene.model.joint(self.object_name).id]
+        self.qpos = scene.model.jnt_qposadr[scene.model.joint(self.object_body).id]
 
     def place(self, scene: Scene, data: mujoco.MjData, xy: np.ndarray, rng: np.random.Generator) -> Placement:
         data.qpos[self.qpos : self.qpos + 7] = [*xy, self.half_height, 1, 0, 0, 0]
@@ -112,7 +118,7 @@ class LiftBox(Lift):
 
     name = "lift_box"
     description = "lift the box"
-    object_name = "box"
+    object_body = "box"
     half_width, half_height = 0.03, 0.055
     mass = 0.35  # kg
 
@@ -131,6 +137,7 @@ class PickPlace(Task):
 
     name = "pick_place"
     description = "put the banana on the plate"
+    object_body = "banana"
     radius, plate_radius, plate_half = 0.024, 0.08, 0.005
     min_distance = 0.17  # between banana and plate centres at reset
 
@@ -178,6 +185,7 @@ class PressButton(Task):
 
     name = "press_button"
     description = "press the button"
+    object_body = "button"
     base_half, cap_half, travel, threshold = 0.02, 0.01, 0.015, 0.010
 
     def build(self, spec: mujoco.MjSpec) -> None:
@@ -214,6 +222,7 @@ class PullDrawer(Task):
 
     name = "pull_drawer"
     description = "pull the drawer open"
+    object_body = "drawer"
     handle_height, handle_out, opening = 0.085, 0.055, 0.10
     depth, width, height = 0.18, 0.20, 0.13  # drawer box half extents are half of these
 

@@ -70,6 +70,10 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
             default=1,
             help="policies trained at once (each gets CPUs / workers threads)",
         )
+        parser.add_argument(
+            "--failure-episodes", type=int, default=20,
+            help="episodes per transfer cell rolled out again to tell wrist from hand failures (0: none)",
+        )  # fmt: skip
         parser.set_defaults(func=run)
 
 
@@ -116,7 +120,12 @@ def run(args: argparse.Namespace) -> int:
 
     def evaluate_policy(training) -> dict[protocols.Cell, dict]:
         mine = [cell for cell in cells if cell.evaluation.training == training]
-        return {cell: workspace.evaluate(cell.evaluation) for cell in mine}
+        results = {cell: workspace.evaluate(cell.evaluation) for cell in mine}
+        for cell in mine:
+            if cell.kind == protocols.TRANSFER and args.failure_episodes > 0:
+                modes = workspace.failure_modes(cell.evaluation, args.failure_episodes)
+                results[cell] = {**results[cell], "failure_modes": modes}
+        return results
 
     results: dict[protocols.Cell, dict] = {}
     with (

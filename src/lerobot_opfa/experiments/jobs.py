@@ -234,6 +234,24 @@ class Workspace:
         shutil.rmtree(scratch, ignore_errors=True)
         return result
 
+    def failure_modes(self, evaluation: Evaluation, episodes: int) -> dict[str, int]:
+        """How `episodes` seeded episodes of the cell end (`failures.OUTCOMES`), counted."""
+        from lerobot_opfa.experiments.failures import OUTCOMES, episode_outcomes
+
+        out = self.root / "failures" / f"{evaluation.name}-{episodes}ep.json"
+        if out.exists():
+            return json.loads(out.read_text())
+        outcomes = episode_outcomes(
+            self.checkpoint(evaluation.training), evaluation.task, evaluation.hand, evaluation.regions,
+            self.scale.n_points, episodes, EVAL_SEED, self.scale.episode_length,
+        )  # fmt: skip
+        counts = {outcome: outcomes.count(outcome) for outcome in OUTCOMES}
+        out.parent.mkdir(parents=True, exist_ok=True)
+        partial = out.with_suffix(".partial")
+        partial.write_text(json.dumps(counts, indent=2))
+        partial.replace(out)
+        return counts
+
     def _run(self, exe: str, args: list[str], log: Path) -> None:
         log.parent.mkdir(parents=True, exist_ok=True)
         path = Path(sys.executable).parent / exe

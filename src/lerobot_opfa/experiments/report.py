@@ -27,7 +27,7 @@ def wilson_interval(successes: int, n: int) -> tuple[float, float]:
     p = successes / n
     centre = (p + Z95**2 / (2 * n)) / (1 + Z95**2 / n)
     half = Z95 * math.sqrt(p * (1 - p) / n + Z95**2 / (4 * n**2)) / (1 + Z95**2 / n)
-    return max(0.0, centre - half), min(1.0, centre + half)
+    return max(0.0, min(p, centre - half)), min(1.0, max(p, centre + half))  # p inside despite rounding
 
 
 def summarize(cells: list[dict]) -> list[dict]:
@@ -163,7 +163,28 @@ def tables(rows: list[dict]) -> str:
     if inside:
         text += "\nIn distribution (each policy on its own demos' task and regions):\n\n"
         text += markdown_table(inside)
-    return text
+    return text + failure_table(transfer)
+
+
+def failure_table(rows: list[dict]) -> str:
+    """How the transfer cells' episodes end, when measured (`failures`): the wrist never brought the hand
+    to the object, or the hand touched it and still failed."""
+    rows = [r for r in rows if "failure_modes" in r]
+    if not rows:
+        return ""
+    episodes = sum(rows[0]["failure_modes"].values())
+    lines = [
+        f"\nHow transfer episodes end ({episodes} episodes per cell, rolled out again):\n",
+        "| group | hand | condition | success | never touched the object (wrist) | touched, failed (hand) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        modes = r["failure_modes"]
+        lines.append(
+            f"| {r['group']} | {r['hand']} | {CONDITION_LABELS[r['condition']]} | {modes['success']} | "
+            f"{modes['never_touched']} | {modes['touched_failed']} |"
+        )
+    return "\n".join(lines) + "\n"
 
 
 def write_report(rows: list[dict], out_dir: Path, name: str, meta: dict, curve: bool = False) -> dict:
