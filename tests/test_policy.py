@@ -414,11 +414,49 @@ def test_save_load_identical_actions_and_processors_by_name(data, tmp_path):
     steps = json.loads((tmp_path / "policy_preprocessor.json").read_text())["steps"]
     names = [s["registry_name"] for s in steps]
     assert names[-4:] == ["device_processor", "opfa_encode_joints", "opfa_normalize", "normalizer_processor"]
+    cloud = ds[0][OBS_POINTCLOUD][-1]
+    expected = {hand: rollout(policy, pre, post, hand, cloud) for hand in HANDS}
+    del pre, post  # one pipeline of a checkpoint at a time (see the interleaving test)
     loaded = OpfaPolicy.from_pretrained(tmp_path)
     pre2, post2 = make_pre_post_processors(loaded.config, pretrained_path=str(tmp_path))
-    cloud = ds[0][OBS_POINTCLOUD][-1]
     for hand in HANDS:
-        assert torch.equal(rollout(policy, pre, post, hand, cloud), rollout(loaded, pre2, post2, hand, cloud))
+        assert torch.equal(expected[hand], rollout(loaded, pre2, post2, hand, cloud))
+
+
+def test_interleaved_pipelines_of_one_checkpoint_never_mix_hands(data, tmp_path):
+    """Two hands through two pipelines loaded from one checkpoint (they share its link): postprocessors
+    that learn their hand from the preprocessor refuse; given their hand, each decodes its own actions."""
+    policy, pre, post, ds = make_policy(data, "merged")
+    policy.eval()
+    for obj in (policy, pre, post):
+        obj.save_pretrained(tmp_path)
+    cloud = ds[0][OBS_POINTCLOUD][-1]
+    hands = ("inspire", "leap")  # 6 and 16 joints
+    expected = {hand: rollout(policy, pre, post, hand, cloud, steps=1) for hand in hands}
+    del pre, post
+
+    def interleaved(hand_a=None, hand_b=None):
+        pipelines = []
+        for hand in (hand_a, hand_b):
+            given = {} if hand is None else {"hand": hand}
+            overrides = {"opfa_unnormalize": given, "opfa_decode_joints": given}
+            pipelines.append(
+                make_pre_post_processors(
+                    policy.config, pretrained_path=str(tmp_path), postprocessor_overrides=overrides
+                )
+            )
+        actions = []
+        for (pre_, _), hand in zip(pipelines, hands, strict=True):
+            policy.reset()
+            torch.manual_seed(0)
+            with torch.no_grad():
+                actions.append(policy.select_action(pre_(native_observation(hand, cloud))))
+        return [post_(action) for (_, post_), action in zip(pipelines, actions, strict=True)]
+
+    with pytest.raises(ValueError, match="2 preprocessors of one policy"):
+        interleaved()
+    decoded = interleaved(*hands)
+    assert all(torch.equal(decoded[i], expected[hand]) for i, hand in enumerate(hands))
 
 
 def test_hub_push_and_pull_through_lerobot(data, tmp_path, monkeypatch):
@@ -449,9 +487,9 @@ def test_hub_push_and_pull_through_lerobot(data, tmp_path, monkeypatch):
         loaded = OpfaPolicy.from_pretrained(hub / "user/opfa_tiny")
         pre2, post2 = make_pre_post_processors(loaded.config, pretrained_path=str(hub / "user/opfa_tiny"))
         cloud = ds[0][OBS_POINTCLOUD][-1]
-        assert torch.equal(
-            rollout(policy, pre, post, "leap", cloud), rollout(loaded, pre2, post2, "leap", cloud)
-        )
+        expected = rollout(policy, pre, post, "leap", cloud)
+        del pre, post  # one pipeline of a checkpoint at a time
+        assert torch.equal(expected, rollout(loaded, pre2, post2, "leap", cloud))
     finally:
         save_galr(data / "galr", HANDS)
 

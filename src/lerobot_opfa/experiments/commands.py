@@ -21,6 +21,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from lerobot_opfa.envs.regions import parse_regions
 from lerobot_opfa.experiments import protocols
 from lerobot_opfa.experiments.jobs import CONDITIONS, Workspace, galr_identity, source_commit
 from lerobot_opfa.experiments.report import summarize, write_report
@@ -47,6 +48,9 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     objects = experiment.add_parser("object", help="w/o vs naive co-training vs OPFA, the other's object")
     objects.add_argument("--tasks", default="lift,lift_box", help="one task (object) per hand")
     objects.add_argument("--hands", default="inspire,xhand")
+    objects.add_argument(
+        "--regions", default=",".join(protocols.OBJECT_REGIONS), help="where the demos and the tests are"
+    )
     fewshot = experiment.add_parser("fewshot", help="success against the number of demos of a new hand")
     fewshot.add_argument("--task", default="press_button")
     fewshot.add_argument("--new-hand", default="inspire")
@@ -88,7 +92,10 @@ def cells_of(args: argparse.Namespace) -> list[protocols.Cell]:
             scale, _names(args.tasks), _names(args.hands), _names(args.more_hands), conditions, args.seed
         )
     if args.experiment == "object":
-        return protocols.objects(scale, _names(args.tasks), _names(args.hands), conditions, args.seed)
+        regions = tuple(parse_regions(args.regions))
+        return protocols.objects(
+            scale, _names(args.tasks), _names(args.hands), regions, conditions, args.seed
+        )
     if args.experiment == "fewshot":
         return protocols.fewshot(scale, args.task, args.new_hand, args.other_hand, conditions, args.seed)
     return protocols.nine(args.task, _names(args.hands), args.demos_per_hand, conditions, args.seed)

@@ -8,11 +8,14 @@ leaves the batch's embodiment ids in `observation.embodiment`.
 Postprocessor: `opfa_decode_joints` maps policy-space actions back to the attached hand's joints (for
 `galr` through the GaLR decoder). A postprocessor only sees the action, so it reads which hand produced it
 from its preprocessor partner: both carry the same `link` id (saved in both JSON configs), the same way
-LeRobot's relative/absolute action steps pair up.
+LeRobot's relative/absolute action steps pair up. Two pipelines loaded from one checkpoint share the link:
+when both preprocessors have seen observations, a postprocessor cannot tell them apart and refuses; give
+each postprocessor its hand instead (`hand`, e.g. through `postprocessor_overrides`).
 """
 
 from __future__ import annotations
 
+import gc
 import weakref
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -29,8 +32,9 @@ if TYPE_CHECKING:  # the GaLR and hand models import FK and mesh libraries: only
     from lerobot_opfa.galr.model import Galr
     from lerobot_opfa.hands.model import HandModel
 
-_ENCODERS: weakref.WeakValueDictionary[str, OpfaEncodeJointsStep] = weakref.WeakValueDictionary()
-"""link id -> the preprocessor step that last processed a batch (its postprocessor partner reads from it)."""
+_ENCODERS: dict[str, weakref.WeakValueDictionary[int, OpfaEncodeJointsStep]] = {}
+"""link id -> the live preprocessor steps that have processed a batch (their postprocessor partners read
+the embodiment ids from the one there is)."""
 
 
 @ProcessorStepRegistry.register("opfa_pointcloud_batch")
@@ -151,7 +155,7 @@ class OpfaEncodeJointsStep(_HandSpace, ProcessorStep):
             new[TransitionKey.ACTION] = convert(action.float(), ids)
         obs[OBS_EMBODIMENT] = ids
         self.last_ids = ids
-        _ENCODERS[self.link] = self
+        _ENCODERS.setdefault(self.link, weakref.WeakValueDictionary())[id(self)] = self
         new[TransitionKey.OBSERVATION] = obs
         return new
 
@@ -263,10 +267,13 @@ class OpfaEncodeJointsStep(_HandSpace, ProcessorStep):
 class OpfaDecodeJointsStep(_HandSpace, ProcessorStep):
     """Policy-space actions (B, [T], wrist + ...) -> wrist + the attached hand's joints in spec order."""
 
+    hand: str | None = None
+    """The attached hand, when given (not saved); else the one its preprocessor saw."""
+
     def __call__(self, transition):
         new = transition.copy()
         action = new[TransitionKey.ACTION]
-        index = self.single_id(embodiment_ids(self.link, len(action), len(self.embodiments)))
+        index = self.single_id(embodiment_ids(self.link, len(action), self.embodiments, self.hand))
         hand = self.model(index)
         wrist, rest = action[..., : self.wrist_dim], action[..., self.wrist_dim :]
         if self.action_space == "galr":
@@ -304,14 +311,36 @@ def n_universal() -> int:
     return len(UNIVERSAL_JOINT_NAMES)
 
 
-def embodiment_ids(link: str, batch: int, n_embodiments: int) -> torch.Tensor:
-    """Embodiment ids of the batch the linked preprocessor saw last (a one-hand policy needs none)."""
-    encoder = _ENCODERS.get(link)
-    if encoder is not None and encoder.last_ids is not None and len(encoder.last_ids) == batch:
-        return encoder.last_ids
-    if n_embodiments == 1:
+def embodiment_ids(link: str, batch: int, embodiments: list[str], hand: str | None = None) -> torch.Tensor:
+    """Embodiment ids of a postprocessor's batch: all `hand` when it is given, else those of the batch the
+    linked preprocessor saw last (a one-hand policy needs neither)."""
+    if hand is not None:
+        if hand not in embodiments:
+            raise ValueError(
+                f"hand '{hand}' is not one this policy was trained on ({', '.join(embodiments)})"
+            )
+        return torch.full((batch,), embodiments.index(hand), dtype=torch.long)
+    live = _live_encoders(link)
+    if len(live) > 1:
+        raise ValueError(
+            f"{len(live)} preprocessors of one policy (link '{link}') have seen observations in this "
+            "process, so its postprocessors cannot tell which hand an action is for; give each postprocessor "
+            "its hand: postprocessor_overrides={'opfa_unnormalize': {'hand': H}, 'opfa_decode_joints': "
+            "{'hand': H}}"
+        )
+    if live and len(live[0].last_ids) == batch:
+        return live[0].last_ids
+    if len(embodiments) == 1:
         return torch.zeros(batch, dtype=torch.long)
     raise ValueError(
         "this postprocessor needs to know which hand produced the actions: run its preprocessor (same "
-        f"link '{link}') on the observation first"
+        f"link '{link}') on the observation first, or give it the hand"
     )
+
+
+def _live_encoders(link: str) -> list[OpfaEncodeJointsStep]:
+    live = list(_ENCODERS.get(link, {}).values())
+    if len(live) > 1:  # pipelines already dropped but not yet collected do not count
+        gc.collect()
+        live = list(_ENCODERS.get(link, {}).values())
+    return live

@@ -214,16 +214,19 @@ class OpfaUnnormalizeStep(_EmbodimentAffine, ProcessorStep):
     training range (a constant action entry comes out as that constant)."""
 
     link: str = ""
+    embodiments: list[str] = field(default_factory=list)
+    hand: str | None = None
+    """The attached hand, when given (not saved); else the one the linked preprocessor saw."""
 
     def __call__(self, transition):
         new = transition.copy()
         action = new[TransitionKey.ACTION]
-        n_embodiments = len(self.tables[f"{ACTION}.shift"])
-        ids = embodiment_ids(self.link, len(action), n_embodiments).to(action.device)
+        names = self.embodiments or [str(i) for i in range(len(self.tables[f"{ACTION}.shift"]))]
+        ids = embodiment_ids(self.link, len(action), names, self.hand).to(action.device)
         x = action * self._table(ACTION, "scale", action, ids) + self._table(ACTION, "shift", action, ids)
         low, high = self._table(ACTION, "low", action, ids), self._table(ACTION, "high", action, ids)
         new[TransitionKey.ACTION] = x.clamp(low, high)
         return new
 
     def get_config(self) -> dict[str, Any]:
-        return {"keys": [ACTION], "link": self.link}
+        return {"keys": [ACTION], "link": self.link, "embodiments": list(self.embodiments)}

@@ -248,7 +248,9 @@ def make_opfa_pre_post_processors(
         ],
         output_steps=[
             UnnormalizerProcessorStep(features={}, norm_map=config.normalization_mapping),
-            OpfaUnnormalizeStep(keys=[ACTION], tables=action_tables, link=shared["link"]),
+            OpfaUnnormalizeStep(
+                keys=[ACTION], tables=action_tables, link=shared["link"], embodiments=shared["embodiments"]
+            ),
             OpfaDecodeJointsStep(**shared),
             DeviceProcessorStep(device="cpu"),
         ],
