@@ -13,7 +13,9 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     merge = dataset.add_parser("merge", help="per-hand datasets -> one dataset in the universal-joint layout")
     merge.add_argument("--inputs", type=Path, nargs="+", required=True, help="per-hand dataset folders")
     merge.add_argument("--output", type=Path, required=True)
-    merge.add_argument("--galr", help="GaLR checkpoint (folder or repo id): cache z of every frame")
+    merge.add_argument(
+        "--galr", help="GaLR checkpoint (packaged name, folder or Hub repo id): cache z of every frame"
+    )
     merge.add_argument("--repo-id", default="local/opfa_merged")
     merge.add_argument("--overwrite", action="store_true")
     merge.set_defaults(func=_merge)
@@ -37,7 +39,9 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         "convert-policy-io", help="give a stock policy trained on a latent dataset a joint-space interface"
     )
     convert.add_argument("--policy", type=Path, required=True, help="checkpoint folder (pretrained_model)")
-    convert.add_argument("--galr", required=True, help="the GaLR the latent dataset was made with")
+    convert.add_argument(
+        "--galr", required=True, help="the GaLR the latent dataset was made with (name, folder, repo)"
+    )
     convert.add_argument("--output", type=Path, required=True)
     convert.add_argument("--hand", help="hand of observations without an embodiment id (default: inferred)")
     convert.set_defaults(func=_convert)
