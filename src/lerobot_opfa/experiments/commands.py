@@ -23,7 +23,7 @@ from tqdm import tqdm
 
 from lerobot_opfa.envs.regions import parse_regions
 from lerobot_opfa.experiments import protocols
-from lerobot_opfa.experiments.jobs import CONDITIONS, Workspace, galr_identity, source_commit
+from lerobot_opfa.experiments.jobs import CONDITIONS, Workspace, galr_identity, source_commit, write_json
 from lerobot_opfa.experiments.report import summarize, write_report
 from lerobot_opfa.experiments.scales import SCALES, get_scale
 
@@ -168,9 +168,7 @@ def _durations(root: Path, start: float, run_id: str) -> dict:
     if isinstance(runs, list):  # written before session 6: one entry per completed run
         runs = {f"run {i}": seconds for i, seconds in enumerate(runs)}
     runs[run_id] = round(time.monotonic() - start, 1)
-    partial = log.with_suffix(".json.partial")
-    partial.write_text(json.dumps(runs, indent=1))
-    partial.replace(log)
+    write_json(log, runs)
     return {
         "wall_seconds_this_run": runs[run_id],
         "wall_seconds_all_runs": round(sum(runs.values()), 1),

@@ -26,32 +26,32 @@ def episode_outcomes(
 ) -> list[str]:
     """One of `OUTCOMES` per seeded episode of the policy in `model` (a `pretrained_model` folder), each
     `steps` long (None: the task's episode length)."""
+    import gymnasium as gym
     import torch
     from lerobot.envs.utils import preprocess_observation
     from lerobot.policies.factory import make_pre_post_processors
 
     import lerobot_policy_opfa  # noqa: F401  (registers the opfa policy and env types)
-    from lerobot_opfa.envs.config import EPISODE_STEPS, OpfaEnvConfig
-    from lerobot_opfa.envs.env import OpfaSimEnv
+    from lerobot_opfa.envs.config import OpfaEnvConfig
     from lerobot_opfa.policy.modeling_opfa import OpfaPolicy
 
     policy = OpfaPolicy.from_pretrained(model).eval()
-    policy.config.device = "cpu"
     preprocessor, postprocessor = make_pre_post_processors(policy.config, pretrained_path=str(model))
     config = OpfaEnvConfig(
         task=task, hand=hand, regions=",".join(regions), obs_type="pointcloud",
-        pointcloud_source="geometry", n_points=n_points,
+        pointcloud_source="geometry", n_points=n_points, episode_length=steps,
     )  # fmt: skip
     env_preprocessor, _ = config.get_env_processors()
-    env = OpfaSimEnv(task, hand, list(regions), obs_type="pointcloud", pointcloud_source="geometry",
-                     n_points=n_points)  # fmt: skip
+    kwargs = dict(config.gym_kwargs)
+    max_steps = kwargs.pop("max_episode_steps")
+    env = gym.make(config.gym_id, disable_env_checker=True, **kwargs).unwrapped
     outcomes = []
     for episode in range(episodes):
         observation, _ = env.reset(seed=seed + episode)
         policy.reset()
         preprocessor.reset()
         touched = success = False
-        for _ in range(steps or EPISODE_STEPS[task]):
+        for _ in range(max_steps):
             batch = preprocess_observation({k: np.asarray(v)[None] for k, v in observation.items()})
             batch["task"] = [env.task_description]
             with torch.inference_mode():

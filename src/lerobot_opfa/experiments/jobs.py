@@ -230,7 +230,7 @@ class Workspace:
             video.parent.mkdir(parents=True, exist_ok=True)
             shutil.copyfile(videos[0], video)
             result["video"] = str(video.relative_to(self.root))
-        out.write_text(json.dumps(result, indent=2))
+        write_json(out, result)
         shutil.rmtree(scratch, ignore_errors=True)
         return result
 
@@ -246,10 +246,7 @@ class Workspace:
             self.scale.n_points, episodes, EVAL_SEED, self.scale.episode_length,
         )  # fmt: skip
         counts = {outcome: outcomes.count(outcome) for outcome in OUTCOMES}
-        out.parent.mkdir(parents=True, exist_ok=True)
-        partial = out.with_suffix(".partial")
-        partial.write_text(json.dumps(counts, indent=2))
-        partial.replace(out)
+        write_json(out, counts)
         return counts
 
     def _run(self, exe: str, args: list[str], log: Path) -> None:
@@ -270,7 +267,16 @@ def source_commit() -> str | None:
         ["git", "describe", "--always", "--dirty", "--abbrev=40"],
         cwd=Path(__file__).parent, capture_output=True, text=True,
     )  # fmt: skip
-    return result.stdout.strip() or None if result.returncode == 0 else None
+    commit = result.stdout.strip()
+    return commit if result.returncode == 0 and commit else None
+
+
+def write_json(path: Path, content) -> None:
+    """Writes `path` whole or not at all: resuming reads every result file found, so none may be cut short."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    partial = path.with_name(f".{path.name}.partial")
+    partial.write_text(json.dumps(content, indent=2))
+    partial.replace(path)
 
 
 def galr_identity(galr: str) -> str:

@@ -61,19 +61,14 @@ def markdown_table(rows: list[dict]) -> str:
         for condition in conditions:
             cells = []
             for group in groups:
-                successes = [
-                    s
+                mine = [
+                    r
                     for r in rows
                     if (r["group"], r["condition"]) == (group, condition) and r["hand"] in members
-                    for s in r["successes"]
                 ]
-                failed = any(
-                    r.get("ceiling_ok") is False
-                    for r in rows
-                    if (r["group"], r["condition"]) == (group, condition) and r["hand"] in members
-                )
+                successes = [s for r in mine for s in r["successes"]]
                 text = _rate_text(sum(successes), len(successes)) if successes else ""
-                cells.append(f"{text} {FLAG}" if failed else text)
+                cells.append(f"{text} {FLAG}" if any(r.get("ceiling_ok") is False for r in mine) else text)
             lines.append(f"| {CONDITION_LABELS[condition]} | {' | '.join(cells)} |")
     return "\n".join(lines) + "\n"
 
@@ -192,7 +187,7 @@ def write_report(rows: list[dict], out_dir: Path, name: str, meta: dict, curve: 
     out_dir.mkdir(parents=True, exist_ok=True)
     table = tables(rows)
     inside = in_distribution_entries(rows)
-    at_ceiling = sum(e["successes"] >= CEILING * e["episodes"] for e in inside)
+    at_ceiling = sum(e["success_rate"] >= CEILING for e in inside)
     report = {
         **meta,
         "results": [r for r in rows if r["kind"] == TRANSFER],
