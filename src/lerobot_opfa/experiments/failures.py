@@ -48,6 +48,7 @@ def episode_outcomes(
     outcomes = []
     for episode in range(episodes):
         observation, _ = env.reset(seed=seed + episode)
+        torch.manual_seed(seed + episode)  # the diffusion noise too: a rerun draws the same episodes
         policy.reset()
         preprocessor.reset()
         touched = success = False
