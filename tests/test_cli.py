@@ -211,3 +211,45 @@ def test_wheel_ships_checkpoints_and_hand_models_without_training_logs(tmp_path)
             assert f"lerobot_opfa/checkpoints/{name[0]}/{file}" in names
     assert not [n for n in names if n.endswith("metrics.jsonl")]
     assert "lerobot_opfa/hand_models/leap/spec.yaml" in names and "lerobot_policy_opfa/__init__.py" in names
+
+
+def test_demo_progress_bar_counts_what_it_says(tmp_path, monkeypatch):
+    """`make demo`'s bar advances once per evaluated hand and says so (the work before it is not counted)."""
+    import argparse
+
+    from lerobot_opfa import demo
+    from lerobot_opfa.experiments import jobs
+
+    bars = []
+
+    class Bar:
+        def __init__(self, total, desc):
+            self.total, self.desc, self.n = total, desc, 0
+            bars.append(self)
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            return False
+
+        def update(self, n=1):
+            self.n += n
+
+    class Workspace:
+        def __init__(self, root, scale, galr):
+            self.root = root
+
+        def evaluate(self, evaluation):
+            return {"condition": "opfa", "hand": evaluation.hand, "task": evaluation.task,
+                    "regions": list(evaluation.regions), "training": "t",
+                    "successes": [True, False]}  # fmt: skip
+
+    monkeypatch.setattr(demo, "tqdm", Bar)
+    monkeypatch.setattr(jobs, "Workspace", Workspace)
+    args = argparse.Namespace(task="press_button", hands="umi,inspire,xhand", region="mid_center",
+                              galr="long", output_dir=tmp_path)  # fmt: skip
+    demo.policy_table(args)
+    (bar,) = bars
+    assert bar.total == bar.n == 3 and "evaluated" in bar.desc
+    assert json.loads((tmp_path / "success.json").read_text())["xhand"] == {"successes": 1, "episodes": 2}
