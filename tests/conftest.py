@@ -1,7 +1,9 @@
-"""Shared fixtures: the built-in hands, and a user hand made from a third-party URDF with meshes."""
+"""Shared fixtures: the built-in hands, and user hands made from third-party models with meshes: a URDF
+(example-robot-data's Allegro) and an MJCF (gymnasium-robotics' Shadow hand), as their packages ship them."""
 
 from __future__ import annotations
 
+import importlib.util
 import shutil
 import sysconfig
 from pathlib import Path
@@ -32,6 +34,38 @@ def user_allegro_spec(tmp_path: Path) -> Path:
         .read_text()
         .replace("MODEL_PATH", str(example_robot_data_allegro()))
     )
+    return spec
+
+
+SHADOW_WRAPPER = """<mujoco model="shadow_hand">
+  <compiler angle="radian" meshdir="../stls/hand"/>
+  <include file="shared.xml"/>
+  <asset><include file="shared_asset.xml"/></asset>
+  <worldbody><include file="robot.xml"/></worldbody>
+</mujoco>
+"""
+"""gymnasium-robotics' hand/robot.xml is a fragment with its defaults and assets in two more files: the
+wrapper a user writes beside it."""
+
+
+def gymnasium_robotics_assets() -> Path:
+    found = importlib.util.find_spec("gymnasium_robotics")
+    if found is None:
+        pytest.fail("gymnasium-robotics is not installed; install the [test] extra")
+    return Path(found.submodule_search_locations[0]) / "envs" / "assets"
+
+
+@pytest.fixture
+def user_shadow_spec(tmp_path: Path) -> Path:
+    """The Shadow MJCF with its meshes (copied, to write the wrapper beside it) and a spec for it."""
+    assets = gymnasium_robotics_assets()
+    shutil.copytree(assets / "hand", tmp_path / "assets" / "hand")
+    shutil.copytree(assets / "stls" / "hand", tmp_path / "assets" / "stls" / "hand")
+    wrapper = tmp_path / "assets" / "hand" / "shadow_hand.xml"
+    wrapper.write_text(SHADOW_WRAPPER)
+    spec = tmp_path / "user_shadow" / "spec.yaml"
+    spec.parent.mkdir()
+    spec.write_text((DATA / "user_shadow_mjcf" / "spec.yaml").read_text().replace("MODEL_PATH", str(wrapper)))
     return spec
 
 

@@ -15,7 +15,7 @@ import pytest
 import torch
 import torch.nn.functional as F  # noqa: N812
 from lerobot.configs import NormalizationMode
-from lerobot.configs.types import FeatureType, PolicyFeature
+from lerobot.configs.types import FeatureType
 from lerobot.datasets.dataset_metadata import LeRobotDatasetMetadata
 from lerobot.datasets.factory import resolve_delta_timestamps
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
@@ -214,12 +214,13 @@ def test_traced_sampling_matches_eager_and_follows_the_weights(float16):
     assert torch.allclose(traced_loaded, eager_loaded, atol=atol)
 
 
-def test_raw_policy_width_comes_from_the_dataset_features():
-    """No hand loaded by name: a user hand is known to `load_hand` by its spec path only."""
-    config = OpfaConfig(**POLICY, action_space="raw", embodiments=["user_hand"], wrist_names=list("xyzabc"))
-    config.input_features = {"observation.state": PolicyFeature(type=FeatureType.STATE, shape=(17,))}
-    config.output_features = {"action": PolicyFeature(type=FeatureType.ACTION, shape=(17,))}
-    assert policy_width(config) == 17
+@pytest.mark.parametrize(("space", "width"), [("raw", 6 + 2), ("per_embodiment", 6 + 28), ("galr", 6 + 8)])
+def test_policy_width_comes_from_the_config_alone(space, width):
+    """No hand is loaded: a user hand's checkpoint (its spec known by path only) still builds."""
+    joints = [["index_mcp_flex", "thumb_mcp_flex"]]
+    config = OpfaConfig(**POLICY, action_space=space, embodiments=["user_hand"], embodiment_joints=joints,
+                        wrist_names=list("xyzabc"), latent_dim=8)  # fmt: skip
+    assert policy_width(config) == width  # 28 universal joints
 
 
 # --- datasets ----------------------------------------------------------------------------------------

@@ -5,6 +5,9 @@ Two layouts are understood, both read from `meta/info.json` feature names:
   (names from its spec, any order);
 - merged (written by `lerobot-opfa dataset merge`): wrist entries, the universal joints, optionally the
   cached GaLR latents `z0..`; `observation.embodiment` names the hands its ids index.
+
+A dataset of a user's hand records its spec (path and hash) in `meta/opfa.json`, so every later command finds
+the hand from the dataset alone.
 """
 
 from __future__ import annotations
@@ -22,8 +25,9 @@ from lerobot_opfa.policy.configuration_opfa import OBS_EMBODIMENT
 
 LATENT_PREFIX = "z"
 OPFA_META_FILE = "meta/opfa.json"
-"""Written by the merge tool: its inputs and, with cached latents, the GaLR that computed them (`galr`, as
-given to the merge, and `galr_fingerprint`)."""
+"""What lerobot-opfa records about a dataset: `hands` (user hands' specs: name -> {spec, sha256}); for a
+merged dataset also its inputs and, with cached latents, the GaLR that computed them (`galr`, as given to
+the merge, and `galr_fingerprint`)."""
 
 
 class JointNameError(ValueError):
@@ -35,6 +39,8 @@ class DatasetLayout:
     kind: str
     """`native` or `merged`."""
     embodiments: list[str]
+    hand_refs: list[str]
+    """Per embodiment, what `load_hand` takes: a built-in name or a user hand's spec path."""
     wrist_names: list[str]
     joint_names: list[str] = field(default_factory=list)
     """native: the hand's joint names in the dataset's column order."""
@@ -64,7 +70,7 @@ def _hand_candidates(hands: list[str] | None) -> list[str]:
 def identify_hand(names: list[str], robot_type: str | None, hands: list[str] | None = None) -> HandSpec:
     """The hand whose actuated joints a native state vector holds: `robot_type` when it names a hand,
     else the one candidate whose joints all appear. Errors list the missing and unknown names."""
-    specs = [load_spec(h) for h in _hand_candidates(hands)]
+    specs = list({s.path: s for s in map(load_spec, _hand_candidates(hands))}.values())
     named = [s for s in specs if s.name == robot_type]
     if named:
         spec = named[0]
@@ -112,16 +118,48 @@ def split_native_names(names: list[str], spec: HandSpec) -> tuple[list[str], lis
     return wrist, hand
 
 
-def merge_record(root: Path | str | None) -> dict:
-    """What the merge tool recorded about a dataset (empty for any other dataset)."""
+def opfa_record(root: Path | str | None) -> dict:
+    """What lerobot-opfa recorded about a dataset (empty for a dataset it did not write)."""
     meta = Path(root) / OPFA_META_FILE if root is not None else None
     return json.loads(meta.read_text()) if meta is not None and meta.is_file() else {}
+
+
+def hand_entry(spec: HandSpec) -> dict[str, str]:
+    """How a dataset records a user hand."""
+    return {"spec": str(spec.path), "sha256": spec.sha256}
+
+
+def recorded_hands(root: Path | str | None) -> dict[str, str]:
+    """User hands a dataset records, name -> spec path, each checked against its recorded hash."""
+    hands = {}
+    for name, entry in opfa_record(root).get("hands", {}).items():
+        path = Path(entry["spec"])
+        if not path.is_file():
+            raise ValueError(
+                f"{root}: its hand '{name}' was recorded from {path}, which is not there; put the spec back "
+                "there (or pass it with --hands)"
+            )
+        if load_spec(path).sha256 != entry["sha256"]:
+            raise ValueError(
+                f"{root}: the spec or model of hand '{name}' ({path}) changed since the dataset was "
+                "recorded; record the demos again"
+            )
+        hands[name] = str(path)
+    return hands
+
+
+def _ref(spec: HandSpec) -> str:
+    builtin = builtin_hands().get(spec.name)
+    return spec.name if builtin is not None and builtin.resolve() == spec.path else str(spec.path)
 
 
 def read_layout(
     features: dict, robot_type: str | None = None, root: Path | str | None = None, hands=None
 ) -> DatasetLayout:
-    """The layout of a dataset from its features (and `meta/opfa.json` under `root` when merged)."""
+    """The layout of a dataset from its features and what `meta/opfa.json` under `root` records. `hands`:
+    the hands (names or spec paths) it may hold besides the built-ins and the ones it records."""
+    recorded = recorded_hands(root)
+    candidates = [*_hand_candidates(hands), *recorded.values()]
     names = feature_names(features, OBS_STATE)
     if ACTION in features and feature_names(features, ACTION) != names:
         raise JointNameError(
@@ -137,8 +175,15 @@ def read_layout(
         wrist, rest = names[: starts[0]], names[starts[0] + len(universal) :]
         if rest and rest != latent_names(len(rest)):
             raise JointNameError(f"unexpected entries after the universal joints: {rest}")
-        fingerprint = merge_record(root).get("galr_fingerprint")
-        return DatasetLayout("merged", embodiments, wrist, [], len(rest), fingerprint)
-    spec = identify_hand(names, robot_type, hands)
+        specs = {s.name: s for s in map(load_spec, candidates)}
+        unknown = [h for h in embodiments if h not in specs]
+        if unknown:
+            raise ValueError(
+                f"{root}: hand(s) {unknown} are neither built in nor recorded by the dataset (meta/opfa.json)"
+            )
+        refs = [_ref(specs[h]) for h in embodiments]
+        fingerprint = opfa_record(root).get("galr_fingerprint")
+        return DatasetLayout("merged", embodiments, refs, wrist, [], len(rest), fingerprint)
+    spec = identify_hand(names, robot_type, candidates)
     wrist, joints = split_native_names(names, spec)
-    return DatasetLayout("native", [spec.name], wrist, joints)
+    return DatasetLayout("native", [spec.name], [_ref(spec)], wrist, joints)

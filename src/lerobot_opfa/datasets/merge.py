@@ -22,8 +22,8 @@ from lerobot.utils.constants import ACTION, OBS_STATE
 from tqdm import tqdm
 
 from lerobot_opfa.datasets.io import atomic_directory, read_columns
-from lerobot_opfa.datasets.layout import OPFA_META_FILE, DatasetLayout, latent_names, read_layout
-from lerobot_opfa.hands.registry import load_hand
+from lerobot_opfa.datasets.layout import OPFA_META_FILE, DatasetLayout, hand_entry, latent_names, read_layout
+from lerobot_opfa.hands.registry import load_hand, load_spec
 from lerobot_opfa.hands.universal import UNIVERSAL_JOINT_NAMES
 from lerobot_opfa.policy.configuration_opfa import OBS_EMBODIMENT, OBS_JOINT_MASK
 
@@ -122,7 +122,14 @@ def merge_datasets(
             for source in opened:
                 _append(merged, source, embodiments, galr, len(wrist), list(extra), progress)
         merged.finalize()
-        meta = {"embodiments": embodiments, "inputs": [str(i.root) for i in opened], "latent_dim": latent_dim}
+        refs = {i.layout.embodiments[0]: i.layout.hand_refs[0] for i in opened}
+        user_hands = {name: hand_entry(load_spec(ref)) for name, ref in refs.items() if ref != name}
+        meta = {
+            "embodiments": embodiments,
+            "inputs": [str(i.root) for i in opened],
+            "latent_dim": latent_dim,
+            "hands": user_hands,
+        }
         if galr is not None:
             from lerobot_opfa.galr import checkpoints
             from lerobot_opfa.policy.galr_ref import galr_fingerprint
@@ -135,9 +142,7 @@ def merge_datasets(
 
 def _append(merged, source: _Input, embodiments, galr, n_wrist: int, extra: list[str], progress) -> None:
     hand = (
-        load_hand(source.layout.embodiments[0])
-        if galr is None
-        else galr.hand(source.layout.embodiments[0])[0]
+        load_hand(source.layout.hand_refs[0]) if galr is None else galr.hand(source.layout.embodiments[0])[0]
     )
     columns = read_columns(source.root, [OBS_STATE, ACTION, *extra, *BOOKKEEPING])
     order = [source.layout.joint_names.index(j) for j in hand.joint_names]
@@ -148,14 +153,12 @@ def _append(merged, source: _Input, embodiments, galr, n_wrist: int, extra: list
     embodiment = np.array([embodiments.index(hand.name)], np.int64)
 
     def to_layout(values: np.ndarray) -> np.ndarray:
-        q = values[:, n_wrist:][:, order]
-        out = np.zeros((len(values), len(UNIVERSAL_JOINT_NAMES)), np.float32)
-        out[:, index] = q
-        parts = [values[:, :n_wrist], out]
+        q = torch.from_numpy(values[:, n_wrist:][:, order]).float()
+        parts = [values[:, :n_wrist], hand.to_universal(q).cpu().numpy()]
         if galr is not None:
             from lerobot_opfa.policy.galr_ref import encode_joints
 
-            parts.append(encode_joints(galr, hand.name, torch.from_numpy(q).float()).cpu().numpy())
+            parts.append(encode_joints(galr, hand.name, q).cpu().numpy())
         return np.concatenate(parts, axis=1).astype(np.float32)
 
     episodes = columns["episode_index"]

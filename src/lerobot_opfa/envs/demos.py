@@ -13,10 +13,12 @@ from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 from tqdm import tqdm
 
 from lerobot_opfa.datasets.io import atomic_directory
+from lerobot_opfa.datasets.layout import OPFA_META_FILE, hand_entry
 from lerobot_opfa.envs.config import ENV_STATE_DIM, EPISODE_STEPS, OBS_POINTCLOUD
 from lerobot_opfa.envs.env import OpfaSimEnv
 from lerobot_opfa.envs.experts import ScriptedExpert
 from lerobot_opfa.envs.regions import parse_regions
+from lerobot_opfa.hands.registry import builtin_hands
 
 logger = logging.getLogger(__name__)
 
@@ -138,7 +140,7 @@ def _record(env: OpfaSimEnv, episodes: int, root: Path, region_names: list[str],
     if not records:
         raise ValueError(
             f"no expert episode of {task} with '{env.hand_model.name}' succeeded in {attempts} attempts; "
-            f"watch one with `lerobot-opfa sim show --task {task} --hand {env.hand_model.spec.path} --video "
+            f"watch one with `lerobot-opfa sim show --task {task} --hand {env.hand_model.spec.path} --out scene.png --video "
             "expert.mp4` and check the spec's grasp pose"
         )
     dataset.finalize()
@@ -155,3 +157,8 @@ def _record(env: OpfaSimEnv, episodes: int, root: Path, region_names: list[str],
         "depth_cameras": list(env.depth_cameras) if env.pointcloud_source == "depth" else [],
     }
     (Path(root) / "meta" / META_FILE).write_text(json.dumps({**meta, "episodes": records}, indent=2))
+    spec = env.hand_model.spec
+    if spec.name not in builtin_hands():
+        (Path(root) / OPFA_META_FILE).write_text(
+            json.dumps({"hands": {spec.name: hand_entry(spec)}}, indent=2)
+        )

@@ -26,7 +26,14 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
 
     pre = galr.add_parser("pretrain", help="pretrain GaLR on random reachable states of the hands")
     pre.add_argument(
-        "--hands", default="all", help="'all' (the built-ins) or comma-separated names / spec paths"
+        "--hands",
+        default="all",
+        help="'all' (the built-ins) or comma-separated names / spec paths; with --init, '+SPEC,...' adds "
+        "hands to the checkpoint's own",
+    )
+    pre.add_argument(
+        "--init",
+        help=f"fine-tune this trained GaLR on new hands instead of starting over ({CHECKPOINT_HELP})",
     )
     pre.add_argument("--steps", type=int, default=3000)
     pre.add_argument("--batch-size", type=int, default=44)
@@ -125,9 +132,15 @@ def _pretrain(args: argparse.Namespace) -> int:
     from lerobot_opfa.galr.train import PretrainConfig, pretrain
     from lerobot_opfa.hands.registry import builtin_hands
 
+    if args.hands.startswith("+") and not args.init:
+        raise ValueError("--hands +SPEC adds hands to a trained GaLR: name it with --init")
+    if args.init and args.model:
+        raise ValueError("--init keeps the checkpoint's architecture: leave out --model")
+    hands = args.hands.lstrip("+").split(",") if args.hands.startswith("+") else None
     config = PretrainConfig(
         output_dir=args.output_dir,
-        hands=_hand_list(args.hands, list(builtin_hands())),
+        hands=hands or _hand_list(args.hands, list(builtin_hands())),
+        init=args.init,
         steps=args.steps,
         batch_size=args.batch_size,
         shares=args.shares,

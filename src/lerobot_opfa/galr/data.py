@@ -58,11 +58,22 @@ def hand_counts(dofs: list[int], batch_size: int, shares: str, generator: torch.
 
 
 def sample_batch(
-    galr: Galr, hands: list[str], batch_size: int, generator: torch.Generator, shares: str
+    galr: Galr,
+    hands: list[str],
+    batch_size: int,
+    generator: torch.Generator,
+    shares: str,
+    focus: tuple[str, ...] = (),
 ) -> HandBatch:
-    """`batch_size` random reachable states of `hands`, shared out as `hand_counts` says."""
+    """`batch_size` random reachable states of `hands`, shared out as `hand_counts` says; the `focus` hands
+    (ones being added to a trained GaLR) get half of every batch between them."""
     models = [galr.hand(name)[0] for name in hands]
-    counts = hand_counts([m.dof for m in models], batch_size, shares, generator)
+    groups = [[i for i, h in enumerate(hands) if (h in focus) == inside] for inside in (True, False)]
+    groups = [g for g in groups if g]
+    sizes = [batch_size // 2, batch_size - batch_size // 2] if len(groups) == 2 else [batch_size]
+    counts = torch.zeros(len(hands), dtype=torch.long)
+    for group, size in zip(groups, sizes, strict=True):
+        counts[group] = hand_counts([models[i].dof for i in group], size, shares, generator)
     joints = {
         name: model.sample_joints(int(n), generator)
         for name, model, n in zip(hands, models, counts.tolist(), strict=True)

@@ -238,7 +238,7 @@ class Galr(nn.Module, PyTorchModelHubMixin, library_name="lerobot-opfa", tags=["
         """(B, latent) -> (B, dof) in loss units (prismatic joints x PRISMATIC_SCALE)."""
         model, _ = self.hand(hand)
         if self.config.decoder == "unified":
-            return self.decoder(z)[:, model.universal_index]
+            return model.from_universal(self.decoder(z))
         return self.decoder[model.name](z)
 
     def decode(self, z: torch.Tensor, hand: str | HandModel) -> torch.Tensor:

@@ -8,13 +8,14 @@ import json
 import logging
 import math
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import torch
 from accelerate import Accelerator
 from tqdm import tqdm
 
+from lerobot_opfa.galr import checkpoints
 from lerobot_opfa.galr.data import make_batch, masked_rmse, sample_batch
 from lerobot_opfa.galr.model import Galr, GalrConfig, hand_record
 from lerobot_opfa.hands.registry import builtin_hands, load_hand
@@ -42,6 +43,9 @@ class PretrainConfig:
     """Held-out states per hand, drawn from a generator no training batch uses."""
     max_minutes: float | None = None
     """Stop (saving a checkpoint) once this much wall time has passed."""
+    init: str | None = None
+    """Start from this trained GaLR (its architecture and hands) and add the `hands` it lacks: they get half
+    of every batch, its own hands the other half, so the unified decoder learns them without forgetting."""
     seed: int = 0
     resume: bool = False
     wandb: bool = False
@@ -82,6 +86,27 @@ def validate(galr: Galr, joints: dict[str, torch.Tensor], chunk: int = 64) -> di
     return result
 
 
+def _registry(init: str) -> list[str]:
+    return checkpoints.load(init).config.hand_names
+
+
+def extended(init: str, hands: list[str]) -> Galr:
+    """The GaLR `init` with the hands it lacks (names or spec paths) added to its registry."""
+    galr = checkpoints.load(init)
+    if galr.config.decoder != "unified":
+        raise ValueError(
+            f"--init {init}: only a unified decoder can take new hands (it has '{galr.config.decoder}')"
+        )
+    known = set(galr.config.hand_names)
+    records = [hand_record(load_hand(h)) for h in hands]
+    new = [r for r in records if r["name"] not in known]
+    if not new:
+        raise ValueError(f"--init {init} already has every hand asked for ({', '.join(sorted(known))})")
+    grown = Galr(replace(galr.config, hands=[*galr.config.hands, *new]))  # the saved config is the init's
+    grown.load_state_dict(galr.state_dict())
+    return grown
+
+
 def _latest_checkpoint(output_dir: Path) -> Path | None:
     found = sorted((output_dir / CHECKPOINTS).glob("step_*"))
     return found[-1] if found else None
@@ -102,6 +127,9 @@ def pretrain(config: PretrainConfig) -> Galr:
         galr = Galr.from_pretrained(checkpoint)
         state = torch.load(checkpoint / "training_state.pt", weights_only=False)
         config.hands = galr.config.hand_names
+    elif config.init is not None:
+        galr, state = extended(config.init, config.hands), None
+        config.model, config.hands = galr.config, galr.config.hand_names
     else:
         torch.manual_seed(config.seed)
         config.model.hands = [hand_record(load_hand(name)) for name in config.hands]
@@ -120,6 +148,7 @@ def pretrain(config: PretrainConfig) -> Galr:
         logger.info("resumed from %s at step %d", checkpoint, step)
 
     held_out = validation_joints(model, config.hands, config.validation_states, config.seed)
+    new_hands = tuple(h for h in config.hands if h not in _registry(config.init)) if config.init else ()
     output_dir.mkdir(parents=True, exist_ok=True)
     (output_dir / "pretrain_config.json").write_text(json.dumps(asdict(config), indent=2, default=str))
     metrics = (output_dir / "metrics.jsonl").open("a")
@@ -149,7 +178,7 @@ def pretrain(config: PretrainConfig) -> Galr:
     while step < config.steps:
         for group in optimizer.param_groups:
             group["lr"] = learning_rate(config, step, time.monotonic() - start)
-        batch = sample_batch(model, config.hands, config.batch_size, generator, config.shares)
+        batch = sample_batch(model, config.hands, config.batch_size, generator, config.shares, new_hands)
         loss, per_hand = masked_rmse(model, batch, galr(*batch.encoder_inputs()))
         optimizer.zero_grad(set_to_none=True)
         accelerator.backward(loss)

@@ -1,8 +1,10 @@
 """`HandModel`: a hand's batched forward kinematics, reachable-state sampling and surface point clouds.
 
-Couplings are folded into one affine map from the actuated joints to every model joint, so FK of a
-batch is one matmul plus one pytorch-kinematics call. Surface points are drawn once per link in the
-link's own frame; a cloud for a batch of poses is then one gathered rigid transform per point.
+Couplings and fixed joints are folded into one affine map from the actuated joints to every model joint,
+so FK of a batch is one matmul plus one pytorch-kinematics call; link poses are returned in the
+documented hand frame (the spec's `base`), whatever frame the vendor's file uses. Surface points are drawn
+once per link in the link's own frame; a cloud for a batch of poses is then one gathered rigid transform
+per point.
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ from functools import cached_property
 from pathlib import Path
 
 import numpy as np
+import pytorch_kinematics as pk
 import torch
 
 from lerobot_opfa.hands.geometry import allocate_points, sample_surface
@@ -66,6 +69,15 @@ class HandModel:
         matrix = torch.zeros(len(chain_joints), len(actuated), dtype=torch.float64)
         offset = torch.zeros(len(chain_joints), dtype=torch.float64)
         matrix[actuated, torch.arange(len(actuated))] = 1.0
+        for joint, value in spec.fixed.items():
+            j = chain_joints.index(joint)
+            if not lower[j] - 1e-6 <= value <= upper[j] + 1e-6:
+                raise HandSpecError(
+                    spec.path,
+                    f"fixed.{joint}",
+                    f"{value} is outside its limits [{lower[j]:.4f}, {upper[j]:.4f}]",
+                )
+            offset[j] = value
         for coupling in spec.couplings.values():
             j, s = chain_joints.index(coupling.joint), chain_joints.index(coupling.source)
             matrix[j] = coupling.scale * matrix[s]
@@ -90,9 +102,34 @@ class HandModel:
                         f"{value} is outside the model's limits [{self._lower[i]:.4f}, {self._upper[i]:.4f}]",
                     )
 
-        self.link_names = sorted(self.model_file.link_meshes, key=self.model_file.link_names.index)
+        hand_links = set(self.model_file.link_meshes) - set(spec.ignored_links)
+        self.link_names = sorted(hand_links, key=self.model_file.link_names.index)
         self._samples: dict[tuple[int, int, int], SurfaceSamples] = {}
+        self._hand_from_model = torch.linalg.inv(self._model_from_hand())
         self.to(device, dtype)
+
+    def _model_from_hand(self) -> torch.Tensor:
+        """(4, 4) pose of the documented hand frame in the model's root frame, from the spec's `base`."""
+        base = self.spec.base
+        frame = torch.eye(4, dtype=torch.float64)
+        roll, pitch, yaw = base.rpy  # URDF: R = Rz(yaw) Ry(pitch) Rx(roll)
+        frame[:3, :3] = pk.euler_angles_to_matrix(
+            torch.tensor([yaw, pitch, roll], dtype=torch.float64), "ZYX"
+        )
+        frame[:3, 3] = torch.tensor(base.xyz, dtype=torch.float64)
+        if base.link is None:
+            return frame
+        chain = self.model_file.chain.to(dtype=torch.float64)
+        rest = self._coupling_offset[None]  # actuated joints at 0, fixed joints at their values
+        moved = rest + 0.1 * self._coupling_matrix.sum(1)[None]
+        at_rest, at_moved = (chain.forward_kinematics(q)[base.link].get_matrix()[0] for q in (rest, moved))
+        if not torch.allclose(at_rest, at_moved, atol=1e-9):
+            raise HandSpecError(
+                self.spec.path,
+                "base.link",
+                f"'{base.link}' moves with the actuated joints; name the wrist or palm",
+            )
+        return at_rest @ frame
 
     @classmethod
     def from_spec(cls, path: str | Path, **kwargs) -> HandModel:
@@ -112,6 +149,7 @@ class HandModel:
         )
         self.lower, self.upper = self._lower.to(**cast), self._upper.to(**cast)
         self.lower_all, self.upper_all = self._lower_all.to(**cast), self._upper_all.to(**cast)
+        self.hand_from_model = self._hand_from_model.to(**cast)
         self._samples.clear()
         return self
 
@@ -136,12 +174,29 @@ class HandModel:
 
     @property
     def universal_names(self) -> list[str]:
-        return [self.spec.joints[j] for j in self.joint_names]
+        return self.spec.universal_names
 
     @property
     def universal_index(self) -> torch.Tensor:
         """Position of each actuated joint in the universal joint table."""
         return torch.tensor([UNIVERSAL_INDEX[u] for u in self.universal_names], device=self.device)
+
+    @property
+    def universal_sign(self) -> torch.Tensor:
+        """(dof,) +1, or -1 where the spec flips a joint's sense into the universal table's."""
+        signs = [self.spec.signs.get(j, 1.0) for j in self.joint_names]
+        return torch.tensor(signs, device=self.device, dtype=self.dtype)
+
+    def to_universal(self, q: torch.Tensor) -> torch.Tensor:
+        """(..., dof) this hand's joints -> (..., universal joints), zero where the hand has none."""
+        out = q.new_zeros(*q.shape[:-1], len(UNIVERSAL_JOINTS))
+        out[..., self.universal_index.to(q.device)] = q * self.universal_sign.to(q.device, q.dtype)
+        return out
+
+    def from_universal(self, universal: torch.Tensor) -> torch.Tensor:
+        """(..., universal joints) -> (..., dof) this hand's joints, in its vendor's senses."""
+        sign = self.universal_sign.to(universal.device, universal.dtype)
+        return universal[..., self.universal_index.to(universal.device)] * sign
 
     @property
     def prismatic_mask(self) -> torch.Tensor:
@@ -182,9 +237,9 @@ class HandModel:
         return self.link_poses(q, self.link_names)
 
     def link_poses(self, q: torch.Tensor, links: list[str]) -> torch.Tensor:
-        """(B, dof) -> (B, len(links), 4, 4) base-frame poses of any model links."""
+        """(B, dof) -> (B, len(links), 4, 4) hand-frame poses of any model links."""
         frames = self.chain.forward_kinematics(self.expand(q.to(self.device, self.dtype)))
-        return torch.stack([frames[link].get_matrix() for link in links], dim=1)
+        return self.hand_from_model @ torch.stack([frames[link].get_matrix() for link in links], dim=1)
 
     # --- point clouds -------------------------------------------------------------------------------
     def surface_samples(

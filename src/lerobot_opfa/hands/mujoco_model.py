@@ -1,11 +1,13 @@
 """A hand as a MuJoCo model ready to simulate: position actuators on the actuated joints and joint
-equalities for the couplings (the spec is the authority; mimic tags and the model's own actuators and
-joint equalities are replaced so that simulation and `HandModel` FK agree), keyframes for the spec's poses,
-and no self-collision."""
+equalities for the couplings and fixed joints (the spec is the authority; mimic tags and the model's own
+actuators, joint equalities, tendons and contact pairs are replaced so that simulation and `HandModel` FK
+agree), the bodies placed so that MuJoCo's world frame is the documented hand frame, keyframes for the
+spec's poses, and no self-collision."""
 
 from __future__ import annotations
 
 import mujoco
+import numpy as np
 
 from lerobot_opfa.hands.model import HandModel
 from lerobot_opfa.hands.universal import UNIVERSAL_INDEX, UNIVERSAL_JOINTS
@@ -27,17 +29,31 @@ def hand_mjspec(hand: HandModel, kp: dict[str, float] | None = None) -> mujoco.M
     spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
     for joint in spec.joints:
         joint.armature = joint.armature or DEFAULT_ARMATURE
+        # The servos below bring their own damping; a vendor's joint damping and friction are tuned for its
+        # own actuators (example-robot-data's Allegro: 10 N m of friction) and would stall them.
+        joint.damping, joint.frictionloss = [0.0, 0.0, 0.0], 0.0
     for actuator in list(spec.actuators):
         spec.delete(actuator)
     for equality in list(spec.equalities):
         if equality.type == mujoco.mjtEq.mjEQ_JOINT:
             spec.delete(equality)
+    for element in [*spec.tendons, *spec.pairs]:  # vendor tendon couplings and explicit self-contacts
+        spec.delete(element)
     for i, joint in enumerate(hand.joint_names):
         kind = UNIVERSAL_JOINTS[UNIVERSAL_INDEX[hand.universal_names[i]]].kind
         actuator = spec.add_actuator(name=f"act_{joint}", target=joint, trntype=mujoco.mjtTrn.mjTRN_JOINT)
         actuator.set_to_position(kp=kp[kind], kv=0.1 * kp[kind])
         actuator.ctrlrange = [float(hand.lower[i]), float(hand.upper[i])]
         actuator.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
+    _place_in_hand_frame(spec, hand)
+    for joint, value in hand.spec.fixed.items():
+        spec.add_equality(
+            name=f"fix_{joint}",
+            type=mujoco.mjtEq.mjEQ_JOINT,
+            objtype=mujoco.mjtObj.mjOBJ_JOINT,
+            name1=joint,
+            data=[value] + [0.0] * (mujoco.mjNEQDATA - 1),  # no joint2: joint1 = data[0]
+        )
     for coupling in hand.spec.couplings.values():
         spec.add_equality(
             name=f"couple_{coupling.joint}",
@@ -62,3 +78,20 @@ def hand_mjspec(hand: HandModel, kp: dict[str, float] | None = None) -> mujoco.M
         if geom.contype or geom.conaffinity:
             geom.contype, geom.conaffinity = HAND_CONTYPE, HAND_CONAFFINITY
     return spec
+
+
+def _place_in_hand_frame(spec: mujoco.MjSpec, hand: HandModel) -> None:
+    """Re-pose the model's top-level bodies by the spec's `base`, so MuJoCo's world is the hand frame."""
+    transform = hand._hand_from_model.numpy()
+    if np.allclose(transform, np.eye(4)):
+        return
+    compiled = spec.compile()
+    rotation = np.zeros(4)
+    mujoco.mju_mat2Quat(rotation, transform[:3, :3].flatten())
+    top_level = [i for i in range(1, compiled.nbody) if compiled.body_parentid[i] == 0]  # in spec order
+    for body, index in zip(spec.worldbody.bodies, top_level, strict=True):
+        quat = np.zeros(4)
+        mujoco.mju_mulQuat(quat, rotation, compiled.body_quat[index])
+        body.pos = transform[:3, :3] @ compiled.body_pos[index] + transform[:3, 3]
+        body.quat = quat
+        body.alt.type = mujoco.mjtOrientation.mjORIENTATION_QUAT

@@ -42,12 +42,14 @@ def load_spec(hand: str | Path) -> HandSpec:
 
 
 @cache
-def _load_hand_cached(spec_path: Path, device: str) -> HandModel:
+def _load_hand_cached(spec_path: Path, device: str, modified: int) -> HandModel:
     from lerobot_opfa.hands.model import HandModel  # torch and the model parsers: only when a model is built
 
     return HandModel.from_spec(spec_path, device=device)
 
 
 def load_hand(hand: str | Path, device: str = "cpu") -> HandModel:
-    """A `HandModel` for a built-in name or a spec path; parsed models are cached per process."""
-    return _load_hand_cached(resolve_spec_path(hand).resolve(), str(device))
+    """A `HandModel` for a built-in name or a spec path; parsed models are cached per process (until the
+    spec file changes)."""
+    path = resolve_spec_path(hand).resolve()
+    return _load_hand_cached(path, str(device), path.stat().st_mtime_ns)

@@ -1,4 +1,5 @@
-"""`spec.yaml`: how lerobot-opfa reads a hand model (joint mapping, couplings, link semantics, poses).
+"""`spec.yaml`: how lerobot-opfa reads a hand model (joint mapping, couplings, link semantics, poses, and
+where the documented hand frame sits in a vendor's model).
 
 The spec is checked twice: on its own when loaded (`HandSpec.load`) and against the model's joints and
 links when a `HandModel` is built (`HandSpec.check_against`). Every error names the file and the field.
@@ -41,6 +42,16 @@ class Coupling:
 
 
 @dataclass(frozen=True)
+class BaseFrame:
+    """The documented hand frame in the model: `xyz` / `rpy` (URDF convention, radians) relative to `link`'s
+    frame (the model's root frame when None), so a vendor file is used as it ships."""
+
+    link: str | None = None
+    xyz: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
 class HandSpec:
     path: Path
     name: str
@@ -54,10 +65,22 @@ class HandSpec:
     links: dict[str, tuple[int, int]]
     """Model link -> semantic label (finger u, segment v)."""
     poses: dict[str, dict[str, float]] = field(default_factory=dict)
+    signs: dict[str, float] = field(default_factory=dict)
+    """Actuated joint -> -1 where the vendor's sense is the opposite of the universal table's."""
+    fixed: dict[str, float] = field(default_factory=dict)
+    """Movable model joints that are not the hand's (wrist, forearm), held at a value."""
+    ignored_links: tuple[str, ...] = ()
+    """Links labelled `null`: their geometry is simulated but is not the hand (a forearm), so no cloud."""
+    base: BaseFrame = field(default_factory=BaseFrame)
 
     @property
     def actuated_joints(self) -> list[str]:
         return list(self.joints)
+
+    @property
+    def universal_names(self) -> list[str]:
+        """The universal joint of each actuated joint, in joint-vector order."""
+        return [self.joints[j] for j in self.actuated_joints]
 
     @property
     def fingers(self) -> list[str]:
@@ -85,9 +108,7 @@ class HandSpec:
             raise HandSpecError(path, "<file>", f"not valid YAML: {err}") from err
         if not isinstance(raw, dict):
             raise HandSpecError(path, "<file>", "expected a mapping at the top level")
-        unknown = sorted(
-            set(raw) - {"name", "kind", "model", "description", "joints", "couplings", "links", "poses"}
-        )
+        unknown = sorted(set(raw) - set(FIELDS))
         if unknown:
             raise HandSpecError(path, unknown[0], f"unknown field(s) {unknown}")
 
@@ -103,9 +124,7 @@ class HandSpec:
         if not model_path.is_file():
             raise HandSpecError(path, "model", f"model file '{model_path}' not found")
 
-        joints = _mapping(raw, "joints", path)
-        if not joints:
-            raise HandSpecError(path, "joints", "a hand needs at least one actuated joint")
+        joints, signs = _parse_joints(_mapping(raw, "joints", path), path)
         for joint, universal in joints.items():
             if universal not in UNIVERSAL_INDEX:
                 raise HandSpecError(
@@ -119,18 +138,38 @@ class HandSpec:
             raise HandSpecError(path, "joints", f"universal name(s) {duplicates} used by more than one joint")
 
         couplings = _parse_couplings(_mapping(raw, "couplings", path), joints, path)
-        links = _parse_links(_mapping(raw, "links", path), path)
+        fixed = _parse_fixed(_mapping(raw, "fixed", path), {*joints, *couplings}, path)
+        links, ignored = _parse_links(_mapping(raw, "links", path), path)
         poses = _parse_poses(_mapping(raw, "poses", path), joints, path)
+        base = _parse_base(_mapping(raw, "base", path), path)
+        description = str(raw.get("description", ""))
         return cls(
-            path, name, kind, model_path, str(raw.get("description", "")), joints, couplings, links, poses
+            path,
+            name,
+            kind,
+            model_path,
+            description,
+            joints,
+            couplings,
+            links,
+            poses,
+            signs,
+            fixed,
+            ignored,
+            base,
         )
 
     def check_against(self, joint_names: list[str], link_names: list[str], geometry_links: set[str]) -> None:
         """Raise if the spec and the model disagree: every movable joint must be actuated or coupled,
         every mapped name must exist, and every link with geometry must carry a label."""
         model_joints = set(joint_names)
-        described = set(self.joints) | set(self.couplings) | {c.source for c in self.couplings.values()}
-        for field_name, names in (("joints", self.joints), ("couplings", self.couplings)):
+        sources = {c.source for c in self.couplings.values()}
+        described = set(self.joints) | set(self.couplings) | set(self.fixed) | sources
+        for field_name, names in (
+            ("joints", self.joints),
+            ("couplings", self.couplings),
+            ("fixed", self.fixed),
+        ):
             unknown = sorted(set(names) - model_joints)
             if unknown:
                 raise HandSpecError(
@@ -146,18 +185,29 @@ class HandSpec:
             raise HandSpecError(
                 self.path,
                 "joints",
-                f"model joint(s) {missing} are neither actuated ('joints') nor coupled ('couplings')",
+                f"model joint(s) {missing} are neither actuated ('joints'), coupled ('couplings') nor held "
+                "('fixed': for a wrist or forearm joint)",
             )
-        unknown_links = sorted(set(self.links) - set(link_names))
+        unknown_links = sorted((set(self.links) | set(self.ignored_links)) - set(link_names))
         if unknown_links:
             raise HandSpecError(
                 self.path, "links", f"unknown link(s) {unknown_links}; the model's links are {link_names}"
             )
-        unlabelled = sorted(geometry_links - set(self.links))
+        unlabelled = sorted(geometry_links - set(self.links) - set(self.ignored_links))
         if unlabelled:
             raise HandSpecError(
-                self.path, "links", f"link(s) {unlabelled} carry geometry but have no [finger, segment] label"
+                self.path,
+                "links",
+                f"link(s) {unlabelled} carry geometry but have no [finger, segment] label "
+                "(null: not the hand)",
             )
+        if self.base.link is not None and self.base.link not in link_names:
+            raise HandSpecError(
+                self.path, "base.link", f"unknown link '{self.base.link}'; the model's links are {link_names}"
+            )
+
+
+FIELDS = ("name", "kind", "model", "description", "base", "joints", "couplings", "fixed", "links", "poses")
 
 
 def _required(raw: dict, key: str, kind: type, path: Path):
@@ -173,6 +223,54 @@ def _mapping(raw: dict, key: str, path: Path) -> dict:
     if not isinstance(value, dict):
         raise HandSpecError(path, key, f"expected a mapping, got {type(value).__name__}")
     return value
+
+
+def _parse_joints(raw: dict, path: Path) -> tuple[dict[str, str], dict[str, float]]:
+    """`joint: universal_name` or `joint: {universal: NAME, sign: -1}` -> (joint -> name, joint -> -1)."""
+    if not raw:
+        raise HandSpecError(path, "joints", "a hand needs at least one actuated joint")
+    joints, signs = {}, {}
+    for joint, entry in raw.items():
+        where = f"joints.{joint}"
+        if isinstance(entry, dict):
+            extra = sorted(set(entry) - {"universal", "sign"})
+            if extra or "universal" not in entry:
+                raise HandSpecError(path, where, "expected a universal name or {universal: NAME, sign: -1}")
+            if entry.get("sign", 1) not in (1, -1):
+                raise HandSpecError(path, where, f"sign must be 1 or -1, got {entry['sign']!r}")
+            if entry.get("sign", 1) == -1:
+                signs[str(joint)] = -1.0
+            entry = entry["universal"]
+        joints[str(joint)] = str(entry)
+    return joints, signs
+
+
+def _parse_fixed(raw: dict, described: set[str], path: Path) -> dict[str, float]:
+    fixed = {}
+    for joint, value in raw.items():
+        if joint in described:
+            raise HandSpecError(
+                path, f"fixed.{joint}", "a joint cannot be both fixed and actuated or coupled"
+            )
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise HandSpecError(path, f"fixed.{joint}", f"expected the value to hold it at, got {value!r}")
+        fixed[str(joint)] = float(value)
+    return fixed
+
+
+def _parse_base(raw: dict, path: Path) -> BaseFrame:
+    extra = sorted(set(raw) - {"link", "xyz", "rpy"})
+    if extra:
+        raise HandSpecError(path, "base", f"unknown key(s) {extra}; expected link, xyz, rpy")
+    vectors = {}
+    for key in ("xyz", "rpy"):
+        value = raw.get(key, [0.0, 0.0, 0.0])
+        ok = isinstance(value, list) and len(value) == 3
+        if not ok or not all(isinstance(x, int | float) and not isinstance(x, bool) for x in value):
+            raise HandSpecError(path, f"base.{key}", f"expected three numbers, got {value!r}")
+        vectors[key] = tuple(float(x) for x in value)
+    link = raw.get("link")
+    return BaseFrame(None if link is None else str(link), vectors["xyz"], vectors["rpy"])
 
 
 def _parse_couplings(raw: dict, joints: dict[str, str], path: Path) -> dict[str, Coupling]:
@@ -214,16 +312,21 @@ def _find_cycle(pending: dict[str, Coupling]) -> list[str]:
     return seen[seen.index(joint) :] + [joint]
 
 
-def _parse_links(raw: dict, path: Path) -> dict[str, tuple[int, int]]:
+def _parse_links(raw: dict, path: Path) -> tuple[dict[str, tuple[int, int]], tuple[str, ...]]:
     if not raw:
         raise HandSpecError(path, "links", "map every link with geometry to [finger, segment]")
-    links = {}
+    links, ignored = {}, []
     for link, label in raw.items():
+        if label is None:
+            ignored.append(str(link))
+            continue
         ok = isinstance(label, list) and len(label) == 2 and all(isinstance(x, int) for x in label)
         if not ok or not 0 <= label[0] < len(FINGERS) or label[1] < 0:
             raise HandSpecError(path, f"links.{link}", f"expected [finger 0-5, segment >= 0], got {label!r}")
         links[str(link)] = (label[0], label[1])
-    return links
+    if not links:
+        raise HandSpecError(path, "links", "at least one link must carry a [finger, segment] label")
+    return links, tuple(ignored)
 
 
 def _parse_poses(raw: dict, joints: dict[str, str], path: Path) -> dict[str, dict[str, float]]:

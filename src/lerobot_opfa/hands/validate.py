@@ -2,7 +2,9 @@
 
 `python -m lerobot_opfa.hands.validate SPEC [--png OUT]` (also `lerobot-opfa hands check`): builds the
 `HandModel` (which enforces the spec's structure), compares its FK with MuJoCo's own kinematics, checks
-that couplings keep coupled joints within their limits, and draws the open and grasp poses.
+that couplings keep coupled joints within their limits, says where the fingers point and the palm faces
+(warning when that is not the documented frame, or a flexion joint bends away from the palm), and draws the
+open and grasp poses.
 """
 
 from __future__ import annotations
@@ -18,8 +20,14 @@ from lerobot_opfa.hands.model import HandModel
 from lerobot_opfa.hands.mujoco_model import hand_mjspec
 from lerobot_opfa.hands.plot import plot_clouds
 from lerobot_opfa.hands.registry import load_hand
+from lerobot_opfa.hands.universal import UNIVERSAL_INDEX, UNIVERSAL_JOINTS
 
 LIMIT_TOLERANCE = 1e-3
+FRAME_TOLERANCE_DEG = 30.0
+"""How far the fingers' or palm's measured direction may lie from the documented +z / +y."""
+ORIGIN_TOLERANCE = 0.05
+"""Metres the hand may lie from its frame's origin (the wrist flange), or reach behind it."""
+FINGERS_POINT, PALM_FACES = np.array([0.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0])
 
 
 def mujoco_link_poses(hand: HandModel, q: torch.Tensor, model: mujoco.MjModel | None = None) -> np.ndarray:
@@ -63,6 +71,75 @@ def coupling_limit_problems(hand: HandModel) -> list[str]:
     return problems
 
 
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / max(float(np.linalg.norm(v)), 1e-12)
+
+
+def _degrees(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.degrees(np.arccos(np.clip(_unit(a) @ _unit(b), -1.0, 1.0))))
+
+
+def flexion_moves(hand: HandModel) -> dict[str, np.ndarray]:
+    """Each flexion joint's own fingertip displacement (hand frame) as the joint moves from 10 % to 40 % of
+    its range, the other joints in the open pose, signed so that it is the universal sense's flexion."""
+    tips = {u: i for i, u in enumerate(sorted({hand.spec.links[link][0] for link in hand.fingertip_links}))}
+    moves = {}
+    for i, (joint, universal) in enumerate(zip(hand.joint_names, hand.universal_names, strict=True)):
+        finger = UNIVERSAL_JOINTS[UNIVERSAL_INDEX[universal]].finger
+        if not universal.endswith("_flex") or finger not in tips:
+            continue
+        q = hand.pose("open").repeat(2, 1)
+        low, span = hand.lower[i], hand.upper[i] - hand.lower[i]
+        q[:, i] = torch.tensor([low + 0.1 * span, low + 0.4 * span])
+        positions = hand.fingertip_positions(q)[:, tips[finger]].double().cpu().numpy()
+        moves[joint] = float(hand.universal_sign[i]) * (positions[1] - positions[0])
+    return moves
+
+
+def frame_report(hand: HandModel) -> tuple[list[str], list[str]]:
+    """(lines saying where the hand lies in its frame, warnings where that is not the documented frame)."""
+    cloud = hand.point_cloud(hand.pose("open")[None], 512)
+    points, fingers = cloud.points[0].double().cpu().numpy(), cloud.labels[0, :, 0].cpu().numpy()
+    tips = hand.fingertip_positions(hand.pose("open")[None])[0].double().cpu().numpy()
+    palm = points[fingers == 0].mean(0) if (fingers == 0).any() else points.mean(0)
+    pointing = _unit(tips.mean(0) - palm)
+    origin = float(np.linalg.norm(points, axis=1).min())
+    lines = [f"fingers point {np.round(pointing, 2).tolist()} (documented: +z)"]
+    warnings = []
+    if _degrees(pointing, FINGERS_POINT) > FRAME_TOLERANCE_DEG:
+        warnings.append(
+            f"the fingers point {_degrees(pointing, FINGERS_POINT):.0f} deg away from +z: give the spec a "
+            "`base` (link, xyz, rpy) that puts the model in the documented hand frame"
+        )
+    moves = flexion_moves(hand) if hand.spec.kind == "hand" else {}  # a gripper's jaws close sideways
+    if moves:
+        flexion = sum(_unit(m) for m in moves.values())
+        facing = _unit(flexion - (flexion @ pointing) * pointing)
+        lines.append(f"palm faces {np.round(facing, 2).tolist()} (documented: +y)")
+        if _degrees(facing, PALM_FACES) > FRAME_TOLERANCE_DEG:
+            warnings.append(
+                f"the palm faces {_degrees(facing, PALM_FACES):.0f} deg away from +y: rotate the model "
+                "about z with the spec's `base.rpy`"
+            )
+        for joint, move in moves.items():
+            if np.linalg.norm(move) > 1e-4 and _unit(move) @ facing < -0.3:
+                warnings.append(
+                    f"joint '{joint}' ({hand.spec.joints[joint]}) bends its finger away from the palm: if "
+                    "the vendor's sense is the opposite of the universal table's, map it with `sign: -1`"
+                )
+    behind = float(-(points @ FINGERS_POINT).min())
+    lines.append(
+        f"nearest point of the hand {origin * 1000:.0f} mm from the origin, farthest behind it "
+        f"{max(0.0, behind) * 1000:.0f} mm (documented: the origin at the wrist flange, the hand in front)"
+    )
+    if origin > ORIGIN_TOLERANCE or behind > ORIGIN_TOLERANCE:
+        warnings.append(
+            f"the hand lies {origin:.2f} m from the origin and reaches {behind:.2f} m behind it: set the "
+            "spec's `base` (link, xyz) at the wrist"
+        )
+    return lines, warnings
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("hand", help="built-in hand name or path to a spec.yaml")
@@ -80,6 +157,9 @@ def main(argv: list[str] | None = None) -> int:
     print(f"  FK vs MuJoCo: {position_error:.1e} m, {rotation_error:.1e}")
     mj = hand_mjspec(hand).compile()
     print(f"  MuJoCo: {mj.nbody} bodies, {mj.njnt} joints, {mj.nu} actuators, {mj.neq} couplings")
+    lines, warnings = frame_report(hand)
+    for line in lines:
+        print(f"  {line}")
     if args.png:
         poses = torch.stack([hand.pose("open"), hand.pose("grasp")])
         cloud = hand.point_cloud(poses, args.n_points)
@@ -88,6 +168,8 @@ def main(argv: list[str] | None = None) -> int:
             for i, name in enumerate(("open", "grasp"))
         }
         print(f"  picture: {plot_clouds(clouds, args.png, title=hand.spec.description)}")
+    for warning in warnings:
+        print(f"  WARNING: {warning}")
     for problem in problems:
         print(f"  PROBLEM: {problem}")
     return 1 if problems else 0

@@ -60,6 +60,8 @@ class OpfaConfig(PreTrainedConfig):
     # resolved from the dataset and the GaLR at the first training run
     embodiments: list[str] = field(default_factory=list)
     """Hands trained on; a frame's embodiment id indexes this list."""
+    embodiment_joints: list[list[str]] = field(default_factory=list)
+    """Per embodiment, the universal joints its actuated joints map to (a checkpoint needs no hand model)."""
     wrist_names: list[str] = field(default_factory=list)
     """Leading state/action entries that are not hand joints (the wrist pose)."""
     latent_dim: int | None = None

@@ -40,6 +40,12 @@ def known_hand_refs(galr: Galr | None) -> list[str]:
     return builtins + extra
 
 
+def galr_hand_refs(galr: Galr) -> list[str]:
+    """What `load_hand` takes for each hand of the GaLR's registry: built-in names, else spec paths."""
+    builtins = builtin_hands()
+    return [h["name"] if h["name"] in builtins else h["spec"] for h in galr.config.hands]
+
+
 @torch.no_grad()
 def encode_joints(galr: Galr, hand: str, q: torch.Tensor, batch_size: int = 1024) -> torch.Tensor:
     """(..., dof) joints of `hand` -> (..., latent_dim), in chunks so big caches fit in memory."""

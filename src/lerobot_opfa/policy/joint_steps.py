@@ -193,9 +193,7 @@ class OpfaEncodeJointsStep(_HandSpace, ProcessorStep):
             return torch.cat([wrist, z], dim=-1)
         if self.action_space == "raw":
             return torch.cat([wrist, q], dim=-1)
-        universal = x.new_zeros(*x.shape[:-1], n_universal())
-        universal[..., hand.universal_index] = q
-        return torch.cat([wrist, universal], dim=-1)
+        return torch.cat([wrist, hand.to_universal(q)], dim=-1)
 
     # --- merged layout: wrist + universal joints [+ cached z] ----------------------------------------
     def _from_universal(self, x: torch.Tensor, ids: torch.Tensor) -> torch.Tensor:
@@ -208,11 +206,11 @@ class OpfaEncodeJointsStep(_HandSpace, ProcessorStep):
             z = x.new_zeros(*x.shape[:-1], d)
             for index in ids.unique().tolist():
                 rows = ids == index
-                q = universal[rows][..., self.model(index).universal_index]
+                q = self.model(index).from_universal(universal[rows])
                 z[rows] = _encode(self.galr_on(x.device), self.embodiments[index], q)
             return torch.cat([wrist, z], dim=-1)
         if self.action_space == "raw":
-            return torch.cat([wrist, universal[..., self.model(0).universal_index]], dim=-1)
+            return torch.cat([wrist, self.model(0).from_universal(universal)], dim=-1)
         row_mask = self._universal_masks.to(x.device)[ids].view(
             len(ids), *([1] * (x.dim() - 2)), n_universal()
         )
@@ -282,7 +280,7 @@ class OpfaDecodeJointsStep(_HandSpace, ProcessorStep):
         elif self.action_space == "raw":
             q = rest
         else:
-            q = rest[..., hand.universal_index]
+            q = hand.from_universal(rest)
         new[TransitionKey.ACTION] = torch.cat([wrist, q.to(wrist.dtype)], dim=-1)
         return new
 

@@ -17,21 +17,18 @@ from lerobot.utils.constants import ACTION, OBS_STATE
 from torch import Tensor, nn
 
 from lerobot_opfa.galr.pointnet import PointNetEncoder
-from lerobot_opfa.hands.registry import load_hand
-from lerobot_opfa.hands.universal import UNIVERSAL_JOINT_NAMES
+from lerobot_opfa.hands.universal import UNIVERSAL_INDEX, UNIVERSAL_JOINT_NAMES
 from lerobot_opfa.policy.configuration_opfa import OBS_EMBODIMENT, OBS_POINTCLOUD, OpfaConfig
 from lerobot_opfa.policy.diffusion import ConditionalUnet1d, Ddim
 
 
 def policy_width(config: OpfaConfig) -> int:
-    """Width of the policy's state and action vectors: wrist + z | the hand's joints | universal joints.
-    Read from the config, so a user hand (known to `load_hand` by its spec path, not its name) works."""
+    """Width of the policy's state and action vectors: wrist + z | the hand's joints | universal joints,
+    read from the config alone."""
     if config.action_space == "galr":
         rest = config.latent_dim
-    elif config.action_space == "raw" and OBS_EMBODIMENT not in config.input_features:
-        rest = config.output_features[ACTION].shape[0] - len(config.wrist_names)  # the hand's own dataset
-    elif config.action_space == "raw":  # a merged dataset (universal layout) of one built-in hand
-        rest = load_hand(config.embodiments[0]).dof
+    elif config.action_space == "raw":
+        rest = len(config.embodiment_joints[0])
     else:
         rest = len(UNIVERSAL_JOINT_NAMES)
     return len(config.wrist_names) + rest
@@ -48,8 +45,8 @@ def loss_weights(config: OpfaConfig, width: int) -> Tensor:
     present = torch.ones(len(config.embodiments), width - n_wrist)
     if config.action_space == "per_embodiment":  # only the universal joints each hand has
         present = torch.zeros_like(present)
-        for e, hand in enumerate(config.embodiments):
-            present[e, load_hand(hand).universal_index] = 1
+        for e, joints in enumerate(config.embodiment_joints):
+            present[e, [UNIVERSAL_INDEX[u] for u in joints]] = 1
     hand_share = 0.5 if n_wrist else 1.0
     wrist = torch.full((len(config.embodiments), n_wrist), (1 - hand_share) / max(n_wrist, 1))
     return torch.cat([wrist, hand_share * present / present.sum(-1, keepdim=True)], dim=-1)
@@ -67,7 +64,7 @@ class OpfaPolicy(PreTrainedPolicy):
             from lerobot_opfa.policy.processor_opfa import resolve_config
 
             resolve_config(config, meta)
-        if not config.embodiments or (config.action_space == "galr" and config.latent_dim is None):
+        if not config.embodiment_joints or (config.action_space == "galr" and config.latent_dim is None):
             raise ValueError("an opfa policy is built from a dataset (dataset_meta) or a trained checkpoint")
         self.config = config
         width = policy_width(config)

@@ -30,10 +30,10 @@ from lerobot.processor.factory import make_policy_processor_pipelines
 from lerobot.utils.constants import ACTION, OBS_STATE
 
 from lerobot_opfa.datasets.io import read_columns
-from lerobot_opfa.datasets.layout import DatasetLayout, latent_names, merge_record, read_layout
+from lerobot_opfa.datasets.layout import DatasetLayout, latent_names, opfa_record, read_layout
 from lerobot_opfa.galr import checkpoints
 from lerobot_opfa.galr.model import Galr
-from lerobot_opfa.hands.registry import builtin_hands
+from lerobot_opfa.hands.registry import load_spec
 from lerobot_opfa.hands.universal import UNIVERSAL_INDEX, UNIVERSAL_JOINT_NAMES, UNIVERSAL_JOINTS
 from lerobot_opfa.policy.configuration_opfa import OBS_EMBODIMENT, OpfaConfig
 from lerobot_opfa.policy.galr_ref import galr_fingerprint, known_hand_refs, load_galr
@@ -60,7 +60,7 @@ def policy_galr(config: OpfaConfig, dataset_root: Path | str | None = None) -> G
     the policy). A given checkpoint that did not make the dataset's latents is an error."""
     if config.action_space != "galr":
         return None
-    record = merge_record(dataset_root)
+    record = opfa_record(dataset_root)
     if not config.galr_path:
         recorded = bool(record.get("galr_fingerprint"))
         config.galr_path = _recorded_galr(record) if recorded else checkpoints.DEFAULT
@@ -110,7 +110,8 @@ def resolve_config(config: OpfaConfig, dataset_meta: Any) -> DatasetLayout:
         if unknown:
             raise ValueError(
                 f"hand(s) {unknown} are not in the GaLR registry of {config.galr_path} "
-                f"({', '.join(galr.config.hand_names)}); pretrain a GaLR that includes them"
+                f"({', '.join(galr.config.hand_names)}); add them with `lerobot-opfa galr pretrain --init "
+                f"{config.galr_path} --hands +SPEC` (minutes), or use action_space raw or per_embodiment"
             )
         config.latent_dim = galr.config.latent_dim
     if config.action_space == "raw" and len(layout.embodiments) != 1:
@@ -119,19 +120,8 @@ def resolve_config(config: OpfaConfig, dataset_meta: Any) -> DatasetLayout:
             "Use 'per_embodiment' (naive co-training) or 'galr'"
         )
     config.embodiments, config.wrist_names = list(layout.embodiments), list(layout.wrist_names)
+    config.embodiment_joints = [load_spec(ref).universal_names for ref in layout.hand_refs]
     return layout
-
-
-def _hand_refs(embodiments: list[str], galr: Galr | None) -> list[str]:
-    """What `load_hand` takes for each embodiment: built-in names, else the GaLR's recorded spec path."""
-    records = {h["name"]: h["spec"] for h in galr.config.hands} if galr is not None else {}
-    builtins = builtin_hands()
-    refs = []
-    for name in embodiments:
-        if name not in builtins and name not in records:
-            raise ValueError(f"hand '{name}' is neither built in nor in the GaLR registry")
-        refs.append(name if name in builtins else records[name])
-    return refs
 
 
 def _raw_noise(wrist_dim: int, universal_names: list[str]) -> torch.Tensor:
@@ -218,7 +208,7 @@ def make_opfa_pre_post_processors(
     shared = dict(
         action_space=config.action_space,
         embodiments=list(config.embodiments),
-        hand_refs=_hand_refs(config.embodiments, galr),
+        hand_refs=list(layout.hand_refs),
         wrist_dim=len(config.wrist_names),
         galr_config=dataclasses.asdict(galr.config) if galr is not None else None,
         link=uuid.uuid4().hex,

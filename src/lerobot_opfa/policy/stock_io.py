@@ -16,9 +16,8 @@ from pathlib import Path
 from lerobot.configs import PreTrainedConfig
 from lerobot.policies.factory import make_pre_post_processors
 
-from lerobot_opfa.policy.galr_ref import load_galr
+from lerobot_opfa.policy.galr_ref import galr_hand_refs, load_galr
 from lerobot_opfa.policy.joint_steps import OpfaDecodeJointsStep, OpfaEncodeJointsStep
-from lerobot_opfa.policy.processor_opfa import _hand_refs
 
 NORMALIZERS = ("normalizer_processor", "unnormalizer_processor")
 
@@ -38,7 +37,7 @@ def convert_policy_io(
             f"the policy's action has {width} entries, fewer than wrist + z ({galr.config.latent_dim})"
         )
     shared = dict(
-        action_space="galr", embodiments=hands, hand_refs=_hand_refs(hands, galr),
+        action_space="galr", embodiments=hands, hand_refs=galr_hand_refs(galr),
         wrist_dim=width - galr.config.latent_dim, galr_config=dataclasses.asdict(galr.config),
         link=uuid.uuid4().hex, galr=galr,
     )  # fmt: skip
