@@ -191,3 +191,45 @@ def test_a_dataset_whose_hand_changed_is_an_error(user_shadow_spec, tmp_path):
     _edit(user_shadow_spec, lambda raw: raw["fixed"].update({"robot0:WRJ1": 0.1}))
     with pytest.raises(ValueError, match="changed since the dataset was recorded; record the demos again"):
         read_layout(info["features"], info["robot_type"], demos)
+
+
+def test_per_embodiment_trains_and_acts_on_a_user_hand_without_a_galr(user_shadow_spec, tmp_path):
+    from lerobot.configs.types import FeatureType
+    from lerobot.datasets.dataset_metadata import LeRobotDatasetMetadata
+    from lerobot.datasets.factory import resolve_delta_timestamps
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+    from lerobot.utils.feature_utils import dataset_to_policy_features
+
+    from lerobot_opfa.policy.configuration_opfa import OpfaConfig
+    from lerobot_opfa.policy.modeling_opfa import OpfaPolicy
+    from lerobot_opfa.policy.processor_opfa import make_opfa_pre_post_processors
+
+    demos, merged = tmp_path / "demos", tmp_path / "merged"
+    code = main(["sim", "demos", "--task", "press_button", "--hand", str(user_shadow_spec), "--episodes", "1",
+                 "--n-points", "16", "--output-dir", str(demos)])  # fmt: skip
+    assert code == 0 and main(["dataset", "merge", "--inputs", str(demos), "--output", str(merged)]) == 0
+    meta = LeRobotDatasetMetadata("local/merged", root=merged)
+    config = OpfaConfig(device="cpu", action_space="per_embodiment", down_dims=(16, 32), horizon=8,
+                        n_action_steps=4, pointcloud_widths=(16, 32), pointcloud_feature_dim=16,
+                        diffusion_step_embed_dim=16, n_groups=4)  # fmt: skip
+    features = dataset_to_policy_features(meta.features)
+    config.output_features = {k: f for k, f in features.items() if f.type is FeatureType.ACTION}
+    config.input_features = {k: f for k, f in features.items() if k not in config.output_features}
+    policy = OpfaPolicy(config, dataset_meta=meta)
+    pre, post = make_opfa_pre_post_processors(config, dataset_meta=meta)
+    assert config.galr_path is None and config.embodiment_joints == [
+        load_hand(user_shadow_spec).universal_names
+    ]
+    dataset = LeRobotDataset(
+        "local/merged", root=merged, delta_timestamps=resolve_delta_timestamps(config, meta)
+    )
+    batch = torch.utils.data.default_collate([dataset[i] for i in range(2)])
+    loss, _ = policy.forward(pre(batch))
+    assert torch.isfinite(loss)
+    frame = LeRobotDataset("local/demos", root=demos)[0]
+    observation = {
+        k: frame[k] for k in ("observation.state", "observation.pointcloud", "observation.environment_state")
+    }
+    with torch.no_grad():
+        action = post(policy.select_action(pre({**observation, "task": frame["task"]})))
+    assert action.shape == (1, frame["action"].shape[0])
