@@ -247,3 +247,15 @@ def test_run_log_counts_an_interrupted_run(tmp_path):
     assert first["runs"] == later["runs"] == 2
     assert 150 <= later["wall_seconds_all_runs"] < 160
     assert json.loads((tmp_path / "runs.json").read_text())["run 0"] == 100.0
+
+
+def test_epochs_flag_names_the_report_and_lengthens_training(capsys):
+    from lerobot_opfa.cli import build_parser
+    from lerobot_opfa.experiments.commands import scale_of
+
+    args = build_parser().parse_args(["experiment", "object", "--epochs", "100"])
+    scale = scale_of(args)
+    assert scale.name == "small_100ep" and scale.epochs == 100
+    assert scale.steps(3200) == 2 * get_scale("small").steps(3200)
+    assert main(["experiment", "object", "--epochs", "0"]) == 2
+    assert "--epochs must be positive" in capsys.readouterr().err

@@ -140,8 +140,8 @@ def _record(env: OpfaSimEnv, episodes: int, root: Path, region_names: list[str],
     if not records:
         raise ValueError(
             f"no expert episode of {task} with '{env.hand_model.name}' succeeded in {attempts} attempts; "
-            f"watch one with `lerobot-opfa sim show --task {task} --hand {env.hand_model.spec.path} --out scene.png --video "
-            "expert.mp4` and check the spec's grasp pose"
+            f"watch one with `lerobot-opfa sim show --task {task} --hand {env.hand_model.spec.path} --out "
+            "scene.png --video expert.mp4` and check the spec's grasp pose"
         )
     dataset.finalize()
     if len(records) < episodes:

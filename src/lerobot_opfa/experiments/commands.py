@@ -16,6 +16,7 @@ import shlex
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor, as_completed
+from dataclasses import replace
 from datetime import datetime
 from pathlib import Path
 
@@ -25,7 +26,7 @@ from lerobot_opfa.envs.regions import parse_regions
 from lerobot_opfa.experiments import protocols
 from lerobot_opfa.experiments.jobs import CONDITIONS, Workspace, galr_identity, source_commit, write_json
 from lerobot_opfa.experiments.report import summarize, write_report
-from lerobot_opfa.experiments.scales import SCALES, get_scale
+from lerobot_opfa.experiments.scales import SCALES, Scale, get_scale
 
 TITLES = {
     "spatial": "Spatial generalisation: success in regions covered only by the other embodiments' demos",
@@ -61,6 +62,9 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     nine.add_argument("--demos-per-hand", type=int, default=8)
     for parser in (spatial, objects, fewshot, nine):
         parser.add_argument("--scale", default="small", choices=list(SCALES))
+        parser.add_argument(
+            "--epochs", type=float, help="train this many epochs instead of the scale's (named in the report)"
+        )
         parser.add_argument("--output-dir", type=Path, help="work folder (default outputs/experiments/NAME)")
         parser.add_argument("--report-dir", type=Path, help="where the JSON/MD/PNG go (default: output dir)")
         parser.add_argument(
@@ -85,8 +89,17 @@ def _names(text: str) -> tuple[str, ...]:
     return tuple(x.strip() for x in text.split(",") if x.strip())
 
 
+def scale_of(args: argparse.Namespace) -> Scale:
+    scale = get_scale(args.scale)
+    if args.epochs is None:
+        return scale
+    if args.epochs <= 0:
+        raise ValueError(f"--epochs must be positive, not {args.epochs}")
+    return replace(scale, name=f"{scale.name}_{args.epochs:g}ep", epochs=args.epochs)
+
+
 def cells_of(args: argparse.Namespace) -> list[protocols.Cell]:
-    scale, conditions = get_scale(args.scale), _names(args.conditions)
+    scale, conditions = scale_of(args), _names(args.conditions)
     if args.experiment == "spatial":
         return protocols.spatial(
             scale, _names(args.tasks), _names(args.hands), _names(args.more_hands), conditions, args.seed
@@ -105,15 +118,15 @@ def run(args: argparse.Namespace) -> int:
     if args.workers < 1:
         raise ValueError(f"--workers must be at least 1, not {args.workers}")
     start, run_id = time.monotonic(), datetime.now().isoformat()
-    cells = cells_of(args)
-    name = f"{args.experiment}_{args.scale}"
+    cells, scale = cells_of(args), scale_of(args)
+    name = f"{args.experiment}_{scale.name}"
     root = args.output_dir or Path("outputs/experiments") / name
     threads = max(1, (os.cpu_count() or 1) // args.workers) if args.workers > 1 else None
-    workspace = Workspace(root, get_scale(args.scale), args.galr, threads)
+    workspace = Workspace(root, scale, args.galr, threads)
     meta = {
         "experiment": args.experiment,
         "title": TITLES[args.experiment],
-        "scale": args.scale,
+        "scale": scale.name,
         "command": "lerobot-opfa " + shlex.join(sys.argv[1:] if sys.argv[0].endswith("lerobot-opfa") else []),
         "arguments": {k: str(v) for k, v in vars(args).items() if k != "func"},
         "galr_identity": galr_identity(args.galr),
@@ -154,7 +167,7 @@ def run(args: argparse.Namespace) -> int:
             report = write_report(
                 summarize(rows), out_dir, name, {**meta, **_durations(root, start, run_id)}, curve
             )
-    print(f"\n{TITLES[args.experiment]} ({args.scale} scale)\n")
+    print(f"\n{TITLES[args.experiment]} ({scale.name} scale)\n")
     print(report["table_markdown"])
     print(f"report: {out_dir / name}.{{json,md,png}}")
     return 0
