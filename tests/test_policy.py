@@ -422,6 +422,10 @@ def test_save_load_identical_actions_and_processors_by_name(data, tmp_path):
     pre2, post2 = make_pre_post_processors(loaded.config, pretrained_path=str(tmp_path))
     for hand in HANDS:
         assert torch.equal(expected[hand], rollout(loaded, pre2, post2, hand, cloud))
+    config = json.loads((tmp_path / "config.json").read_text())
+    del config["embodiment_joints"]  # a checkpoint saved before the field existed
+    (tmp_path / "config.json").write_text(json.dumps(config))
+    assert OpfaPolicy.from_pretrained(tmp_path).config.embodiment_joints == loaded.config.embodiment_joints
 
 
 def test_interleaved_pipelines_of_one_checkpoint_never_mix_hands(data, tmp_path):

@@ -17,6 +17,7 @@ from lerobot.utils.constants import ACTION, OBS_STATE
 from torch import Tensor, nn
 
 from lerobot_opfa.galr.pointnet import PointNetEncoder
+from lerobot_opfa.hands.registry import load_spec
 from lerobot_opfa.hands.universal import UNIVERSAL_INDEX, UNIVERSAL_JOINT_NAMES
 from lerobot_opfa.policy.configuration_opfa import OBS_EMBODIMENT, OBS_POINTCLOUD, OpfaConfig
 from lerobot_opfa.policy.diffusion import ConditionalUnet1d, Ddim
@@ -64,6 +65,8 @@ class OpfaPolicy(PreTrainedPolicy):
             from lerobot_opfa.policy.processor_opfa import resolve_config
 
             resolve_config(config, meta)
+        if config.embodiments and not config.embodiment_joints:  # saved before the field existed: built-ins
+            config.embodiment_joints = [load_spec(hand).universal_names for hand in config.embodiments]
         if not config.embodiment_joints or (config.action_space == "galr" and config.latent_dim is None):
             raise ValueError("an opfa policy is built from a dataset (dataset_meta) or a trained checkpoint")
         self.config = config
