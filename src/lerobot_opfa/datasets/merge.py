@@ -1,7 +1,7 @@
 """`lerobot-opfa dataset merge`: per-hand LeRobotDatasets -> one cross-embodiment LeRobotDataset (v3).
 
 Hands have different joint counts, so the merged state/action use one layout for all: the wrist entries,
-the universal joints (zero where a hand has none; `observation.joint_mask` says which exist), and, when a
+the universal joints (zero where a hand has none), and, when a
 GaLR is given, the latent z of every state and action frame, computed once here so that training in GaLR
 space costs what a raw-joint step costs. `observation.embodiment` holds the hand's index (its feature names
 list the hands). Point clouds stay flattened (N*3,) so LeRobot's own dataset tools keep working.
@@ -25,7 +25,7 @@ from lerobot_opfa.datasets.io import atomic_directory, read_columns
 from lerobot_opfa.datasets.layout import OPFA_META_FILE, DatasetLayout, hand_entry, latent_names, read_layout
 from lerobot_opfa.hands.registry import load_hand, load_spec
 from lerobot_opfa.hands.universal import UNIVERSAL_JOINT_NAMES
-from lerobot_opfa.policy.configuration_opfa import OBS_EMBODIMENT, OBS_JOINT_MASK
+from lerobot_opfa.policy.configuration_opfa import OBS_EMBODIMENT
 
 logger = logging.getLogger(__name__)
 
@@ -109,7 +109,6 @@ def merge_datasets(
     features = {
         OBS_STATE: {"dtype": "float32", "shape": (len(names),), "names": names},
         ACTION: {"dtype": "float32", "shape": (len(names),), "names": names},
-        OBS_JOINT_MASK: {"dtype": "float32", "shape": (len(universal),), "names": universal},
         OBS_EMBODIMENT: {"dtype": "int64", "shape": (1,), "names": embodiments},
         **extra,
     }
@@ -146,9 +145,6 @@ def _append(merged, source: _Input, embodiments, galr, n_wrist: int, extra: list
     )
     columns = read_columns(source.root, [OBS_STATE, ACTION, *extra, *BOOKKEEPING])
     order = [source.layout.joint_names.index(j) for j in hand.joint_names]
-    index = hand.universal_index.tolist()
-    mask = np.zeros(len(UNIVERSAL_JOINT_NAMES), np.float32)
-    mask[index] = 1.0
     tasks = {int(row.task_index): task for task, row in source.meta.tasks.iterrows()}
     embodiment = np.array([embodiments.index(hand.name)], np.int64)
 
@@ -167,7 +163,7 @@ def _append(merged, source: _Input, embodiments, galr, n_wrist: int, extra: list
         rows = rows[np.argsort(columns["frame_index"][rows])]
         state, action = to_layout(columns[OBS_STATE][rows]), to_layout(columns[ACTION][rows])
         for j, row in enumerate(rows):
-            frame = {OBS_STATE: state[j], ACTION: action[j], OBS_JOINT_MASK: mask, OBS_EMBODIMENT: embodiment}
+            frame = {OBS_STATE: state[j], ACTION: action[j], OBS_EMBODIMENT: embodiment}
             for key in extra:
                 dtype = merged.meta.features[key]["dtype"]
                 frame[key] = np.asarray(columns[key][row], dtype=dtype).reshape(

@@ -35,6 +35,9 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         "--init",
         help=f"fine-tune this trained GaLR on new hands instead of starting over ({CHECKPOINT_HELP})",
     )
+    pre.add_argument(
+        "--anchor", type=float, default=1.0, help="with --init: weight of keeping its own hands' latents"
+    )
     pre.add_argument("--steps", type=int, default=3000)
     pre.add_argument("--batch-size", type=int, default=44)
     pre.add_argument(
@@ -141,6 +144,7 @@ def _pretrain(args: argparse.Namespace) -> int:
         output_dir=args.output_dir,
         hands=hands or _hand_list(args.hands, list(builtin_hands())),
         init=args.init,
+        anchor=args.anchor,
         steps=args.steps,
         batch_size=args.batch_size,
         shares=args.shares,

@@ -19,11 +19,6 @@ def radius_neighbors(
     return index
 
 
-def neighbor_counts(queries: torch.Tensor, supports: torch.Tensor, radius: float) -> torch.Tensor:
-    """Number of supports within `radius` of each query, (B, Q): used to calibrate `limit`."""
-    return (torch.cdist(queries, supports) <= radius).sum(-1)
-
-
 def gather_neighbors(values: torch.Tensor, index: torch.Tensor, shadow: float = 0.0) -> torch.Tensor:
     """(B, S, C) values and (B, Q, K) indices -> (B, Q, K, C); the shadow index reads `shadow`."""
     padded = torch.cat([values, values.new_full((values.shape[0], 1, values.shape[2]), shadow)], dim=1)

@@ -16,7 +16,7 @@ from accelerate import Accelerator
 from tqdm import tqdm
 
 from lerobot_opfa.galr import checkpoints
-from lerobot_opfa.galr.data import make_batch, masked_rmse, sample_batch
+from lerobot_opfa.galr.data import HandBatch, make_batch, masked_rmse, sample_batch
 from lerobot_opfa.galr.model import Galr, GalrConfig, hand_record
 from lerobot_opfa.hands.registry import builtin_hands, load_hand
 
@@ -46,6 +46,9 @@ class PretrainConfig:
     init: str | None = None
     """Start from this trained GaLR (its architecture and hands) and add the `hands` it lacks: they get half
     of every batch, its own hands the other half, so the unified decoder learns them without forgetting."""
+    anchor: float = 1.0
+    """With `init`: weight of keeping its own hands' latents where `init` puts them (MSE over their
+    variance), so that what the policies and datasets built on `init` read stays put."""
     seed: int = 0
     resume: bool = False
     wandb: bool = False
@@ -84,6 +87,16 @@ def validate(galr: Galr, joints: dict[str, torch.Tensor], chunk: int = 64) -> di
         result[name] = math.degrees(torch.cat(squared).mean().sqrt().item())
     galr.train()
     return result
+
+
+def anchor_drift(anchor: Galr, batch: HandBatch, z: torch.Tensor, new_hands: tuple[str, ...]) -> torch.Tensor:
+    """How far the latents of the hands `anchor` knows moved from its own, relative to their spread."""
+    rows = torch.cat([torch.arange(len(z))[r] for name, r, _ in batch.groups if name not in new_hands])
+    if len(rows) == 0:
+        return z.new_zeros(())
+    with torch.no_grad():
+        reference = anchor(*(x[rows.to(x.device)] for x in batch.encoder_inputs()))
+    return (z[rows.to(z.device)] - reference).square().mean() / reference.var().clamp(min=1e-8)
 
 
 def _registry(init: str) -> list[str]:
@@ -149,6 +162,7 @@ def pretrain(config: PretrainConfig) -> Galr:
 
     held_out = validation_joints(model, config.hands, config.validation_states, config.seed)
     new_hands = tuple(h for h in config.hands if h not in _registry(config.init)) if config.init else ()
+    anchor = checkpoints.load(config.init).to(accelerator.device).requires_grad_(False) if new_hands else None
     output_dir.mkdir(parents=True, exist_ok=True)
     (output_dir / "pretrain_config.json").write_text(json.dumps(asdict(config), indent=2, default=str))
     metrics = (output_dir / "metrics.jsonl").open("a")
@@ -179,7 +193,11 @@ def pretrain(config: PretrainConfig) -> Galr:
         for group in optimizer.param_groups:
             group["lr"] = learning_rate(config, step, time.monotonic() - start)
         batch = sample_batch(model, config.hands, config.batch_size, generator, config.shares, new_hands)
-        loss, per_hand = masked_rmse(model, batch, galr(*batch.encoder_inputs()))
+        z = galr(*batch.encoder_inputs())
+        loss, per_hand = masked_rmse(model, batch, z)
+        drift = anchor_drift(anchor, batch, z, new_hands) if anchor is not None else None
+        if drift is not None:
+            loss = loss + config.anchor * drift
         optimizer.zero_grad(set_to_none=True)
         accelerator.backward(loss)
         accelerator.clip_grad_norm_(galr.parameters(), config.grad_clip)
@@ -188,7 +206,8 @@ def pretrain(config: PretrainConfig) -> Galr:
         progress.update()
         progress.set_postfix(loss=f"{loss.item():.4f}")
         log({"train/loss": loss.item(), "train/lr": optimizer.param_groups[0]["lr"]}
-            | {f"train/rmse/{k}": v.item() for k, v in per_hand.items()})  # fmt: skip
+            | {f"train/rmse/{k}": v.item() for k, v in per_hand.items()}
+            | ({"train/anchor_drift": drift.item()} if drift is not None else {}))  # fmt: skip
         out_of_time = config.max_minutes is not None and elapsed > 60 * config.max_minutes
         if step % config.validate_every == 0 or step == config.steps or out_of_time:
             rmse = validate(model, held_out)

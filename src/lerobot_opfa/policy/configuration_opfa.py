@@ -16,7 +16,6 @@ from lerobot.utils.constants import ACTION, OBS_STATE
 
 OBS_POINTCLOUD = "observation.pointcloud"
 OBS_EMBODIMENT = "observation.embodiment"
-OBS_JOINT_MASK = "observation.joint_mask"
 OBS_HAND = "observation.hand"
 """Name of the hand an env observation comes from (set by the `opfa` env's processor; not a tensor)."""
 ACTION_SPACES = ("galr", "raw", "per_embodiment")

@@ -19,8 +19,6 @@ from lerobot.policies.factory import make_pre_post_processors
 from lerobot_opfa.policy.galr_ref import galr_hand_refs, load_galr
 from lerobot_opfa.policy.joint_steps import OpfaDecodeJointsStep, OpfaEncodeJointsStep
 
-NORMALIZERS = ("normalizer_processor", "unnormalizer_processor")
-
 
 def convert_policy_io(
     policy_dir: Path | str, galr_path: str, output: Path | str, hand: str | None = None
