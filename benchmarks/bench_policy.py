@@ -38,9 +38,10 @@ from lerobot.utils.feature_utils import dataset_to_policy_features  # noqa: E402
 from lerobot_opfa.datasets.latent import latent_dataset  # noqa: E402
 from lerobot_opfa.datasets.merge import merge_datasets  # noqa: E402
 from lerobot_opfa.datasets.synthetic import write_synthetic_dataset  # noqa: E402
+from lerobot_opfa.features import OBS_POINTCLOUD  # noqa: E402
 from lerobot_opfa.galr.model import Galr, GalrConfig, hand_record  # noqa: E402
 from lerobot_opfa.hands import load_hand  # noqa: E402
-from lerobot_opfa.policy.configuration_opfa import OBS_POINTCLOUD, OpfaConfig  # noqa: E402
+from lerobot_opfa.policy.configuration_opfa import OpfaConfig  # noqa: E402
 from lerobot_opfa.policy.joint_steps import OpfaDecodeJointsStep  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"

@@ -190,7 +190,7 @@ def test_spatial_experiment_toy_end_to_end_and_resume(tmp_path, capsys):
     # the env names its hand, so the policy refuses a hand it was not trained on
     from lerobot.policies.factory import make_pre_post_processors
 
-    from lerobot_opfa.policy.configuration_opfa import OBS_HAND, OBS_POINTCLOUD
+    from lerobot_opfa.features import OBS_HAND, OBS_POINTCLOUD
     from lerobot_opfa.policy.modeling_opfa import OpfaPolicy
 
     opfa = next(c.parent for c in checkpoints if c.parts[-5].startswith("opfa"))

@@ -31,9 +31,10 @@ from lerobot_opfa.datasets.latent import latent_dataset
 from lerobot_opfa.datasets.layout import JointNameError, read_layout
 from lerobot_opfa.datasets.merge import merge_datasets
 from lerobot_opfa.datasets.synthetic import write_synthetic_dataset
+from lerobot_opfa.features import OBS_EMBODIMENT, OBS_POINTCLOUD
 from lerobot_opfa.galr.model import Galr, GalrConfig, hand_record
 from lerobot_opfa.hands import load_hand
-from lerobot_opfa.policy.configuration_opfa import OBS_EMBODIMENT, OBS_POINTCLOUD, OpfaConfig
+from lerobot_opfa.policy.configuration_opfa import OpfaConfig
 from lerobot_opfa.policy.joint_steps import OpfaEncodeJointsStep
 from lerobot_opfa.policy.modeling_opfa import OpfaPolicy, policy_width
 from lerobot_opfa.policy.normalization import OpfaNormalizeStep, OpfaUnnormalizeStep
@@ -144,6 +145,30 @@ def reference_unet(unet, x, t, cond, head):
         h = up(_reference_film_block(second, _reference_film_block(first, h, cond), cond))
     out = unet.heads(_reference_conv_block(unet.final, h)).view(len(x), unet.n_heads, unet.action_dim, -1)
     return out[torch.arange(len(x)), head].transpose(1, 2)
+
+
+@pytest.mark.parametrize(
+    ("inference", "schedule", "prediction"),
+    [(10, "squaredcos_cap_v2", "sample"), (30, "squaredcos_cap_v2", "epsilon"), (7, "linear", "sample")],
+)
+def test_ddim_matches_diffusers(inference, schedule, prediction):
+    from diffusers import DDIMScheduler
+
+    from lerobot_opfa.policy.diffusion import Ddim
+
+    ours = Ddim(100, inference, schedule, 1e-4, 0.02, prediction, clip=1.0)
+    theirs = DDIMScheduler(num_train_timesteps=100, beta_schedule=schedule, beta_start=1e-4, beta_end=0.02,
+                           prediction_type=prediction, clip_sample=True, clip_sample_range=1.0)  # fmt: skip
+    theirs.set_timesteps(inference)
+    assert ours.timesteps == theirs.timesteps.tolist()
+    torch.manual_seed(0)
+    outputs = [1.5 * torch.randn(2, 8, 3) for _ in ours.timesteps]  # some beyond the clip range
+    x_ours = x_theirs = torch.randn(2, 8, 3)
+    for i, t in enumerate(ours.timesteps):
+        t_prev = ours.timesteps[i + 1] if i + 1 < len(ours.timesteps) else -1
+        x_ours = ours.step(outputs[i], t, x_ours, t_prev)
+        x_theirs = theirs.step(outputs[i], t, x_theirs, use_clipped_model_output=True).prev_sample
+    assert torch.allclose(x_ours, x_theirs, atol=1e-5)
 
 
 def test_fast_unet_and_sampler_match_the_plain_reference():

@@ -78,7 +78,7 @@ def _summary(root: Path) -> str:
     """'<root>: N episodes, M frames of <hands>' from the dataset's own metadata."""
     import json
 
-    from lerobot_opfa.policy.configuration_opfa import OBS_EMBODIMENT
+    from lerobot_opfa.features import OBS_EMBODIMENT
 
     info = json.loads((Path(root) / "meta" / "info.json").read_text())
     embodiment = info["features"].get(OBS_EMBODIMENT, {}).get("names") or [info.get("robot_type")]

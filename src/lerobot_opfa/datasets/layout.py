@@ -18,10 +18,10 @@ from pathlib import Path
 
 from lerobot.utils.constants import ACTION, OBS_STATE
 
+from lerobot_opfa.features import OBS_EMBODIMENT
 from lerobot_opfa.hands.registry import builtin_hands, load_spec
 from lerobot_opfa.hands.spec import HandSpec
 from lerobot_opfa.hands.universal import UNIVERSAL_JOINT_NAMES
-from lerobot_opfa.policy.configuration_opfa import OBS_EMBODIMENT
 
 LATENT_PREFIX = "z"
 OPFA_META_FILE = "meta/opfa.json"

@@ -23,9 +23,9 @@ from tqdm import tqdm
 
 from lerobot_opfa.datasets.io import atomic_directory, read_columns
 from lerobot_opfa.datasets.layout import OPFA_META_FILE, DatasetLayout, hand_entry, latent_names, read_layout
+from lerobot_opfa.features import OBS_EMBODIMENT
 from lerobot_opfa.hands.registry import load_hand, load_spec
 from lerobot_opfa.hands.universal import UNIVERSAL_JOINT_NAMES
-from lerobot_opfa.policy.configuration_opfa import OBS_EMBODIMENT
 
 logger = logging.getLogger(__name__)
 
@@ -84,7 +84,7 @@ def merge_datasets(
     galr = None
     hands = None
     if galr_path is not None:
-        from lerobot_opfa.policy.galr_ref import known_hand_refs, load_galr
+        from lerobot_opfa.galr.frozen import known_hand_refs, load_galr
 
         galr = load_galr(str(galr_path))
         hands = known_hand_refs(galr)
@@ -131,7 +131,7 @@ def merge_datasets(
         }
         if galr is not None:
             from lerobot_opfa.galr import checkpoints
-            from lerobot_opfa.policy.galr_ref import galr_fingerprint
+            from lerobot_opfa.galr.frozen import galr_fingerprint
 
             meta |= {"galr": checkpoints.record(galr_path), "galr_fingerprint": galr_fingerprint(galr)}
         (partial / OPFA_META_FILE).write_text(json.dumps(meta, indent=2))
@@ -152,7 +152,7 @@ def _append(merged, source: _Input, embodiments, galr, n_wrist: int, extra: list
         q = torch.from_numpy(values[:, n_wrist:][:, order]).float()
         parts = [values[:, :n_wrist], hand.to_universal(q).cpu().numpy()]
         if galr is not None:
-            from lerobot_opfa.policy.galr_ref import encode_joints
+            from lerobot_opfa.galr.frozen import encode_joints
 
             parts.append(encode_joints(galr, hand.name, q).cpu().numpy())
         return np.concatenate(parts, axis=1).astype(np.float32)

@@ -10,8 +10,8 @@ import numpy as np
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 
+from lerobot_opfa.features import OBS_POINTCLOUD
 from lerobot_opfa.hands.registry import load_hand
-from lerobot_opfa.policy.configuration_opfa import OBS_POINTCLOUD
 
 WRIST_NAMES = ("wrist_x", "wrist_y", "wrist_z", "wrist_yaw", "wrist_pitch", "wrist_roll")
 

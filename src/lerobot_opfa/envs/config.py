@@ -14,7 +14,7 @@ from lerobot.processor import ObservationProcessorStep, PolicyProcessorPipeline
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 
 from lerobot_opfa.envs.regions import parse_regions
-from lerobot_opfa.policy.configuration_opfa import OBS_HAND, OBS_POINTCLOUD
+from lerobot_opfa.features import OBS_HAND, OBS_POINTCLOUD
 
 # Task name -> episode length in steps at the default 20 Hz (the scripted experts finish well within).
 EPISODE_STEPS = {"lift": 100, "lift_box": 100, "pick_place": 160, "press_button": 80, "pull_drawer": 120}

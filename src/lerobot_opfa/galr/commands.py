@@ -1,6 +1,6 @@
 """`lerobot-opfa galr ...`: list the packaged checkpoints, pretrain, evaluate, embed joints, decode latents.
 
-A checkpoint is named as `galr_ref.load_galr` takes it: a packaged name (`galr list`), a folder or a Hub
+A checkpoint is named as `frozen.load_galr` takes it: a packaged name (`galr list`), a folder or a Hub
 repo id. Torch and the model load only in the commands that use them."""
 
 from __future__ import annotations

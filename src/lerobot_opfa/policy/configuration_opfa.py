@@ -14,10 +14,8 @@ from lerobot.optim import AdamConfig
 from lerobot.optim.schedulers import CosineDecayWithWarmupSchedulerConfig
 from lerobot.utils.constants import ACTION, OBS_STATE
 
-OBS_POINTCLOUD = "observation.pointcloud"
-OBS_EMBODIMENT = "observation.embodiment"
-OBS_HAND = "observation.hand"
-"""Name of the hand an env observation comes from (set by the `opfa` env's processor; not a tensor)."""
+from lerobot_opfa.features import OBS_POINTCLOUD
+
 ACTION_SPACES = ("galr", "raw", "per_embodiment")
 WRIST_NORMALIZATIONS = ("per_embodiment", "shared")
 

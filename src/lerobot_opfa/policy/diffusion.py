@@ -257,7 +257,10 @@ def alphas_cumprod(config_schedule: str, steps: int, beta_start: float, beta_end
 
 
 class Ddim(nn.Module):
-    """Forward noising for training and the deterministic (eta = 0) DDIM reverse process."""
+    """Forward noising for training and the deterministic (eta = 0) DDIM reverse process: diffusers'
+    `DDIMScheduler` ("leading" timesteps, alpha-bar 1 after the last step) stepped with
+    `use_clipped_model_output=True`, as plain float arithmetic so that sampling a chunk costs no scheduler
+    overhead."""
 
     def __init__(
         self,
@@ -274,8 +277,8 @@ class Ddim(nn.Module):
         self.register_buffer("alpha_bar", alpha_bar, persistent=False)
         self.alpha_bar_values = alpha_bar.tolist()  # for sampling: no tensor ops or device syncs per step
         self.train_steps, self.prediction, self.clip = train_steps, prediction, clip
-        stride = train_steps // inference_steps
-        self.timesteps = list(range(0, train_steps, stride))[::-1][:inference_steps]
+        stride = train_steps // inference_steps  # diffusers' "leading" spacing
+        self.timesteps = [i * stride for i in range(inference_steps)][::-1]
 
     def add_noise(self, x0: Tensor, noise: Tensor, t: Tensor) -> Tensor:
         a = self.alpha_bar[t].view(-1, *([1] * (x0.dim() - 1)))

@@ -26,7 +26,7 @@ from lerobot.configs.types import PipelineFeatureType, PolicyFeature
 from lerobot.processor import ObservationProcessorStep, ProcessorStep, ProcessorStepRegistry, TransitionKey
 from lerobot.utils.constants import ACTION, OBS_STATE
 
-from lerobot_opfa.policy.configuration_opfa import OBS_EMBODIMENT, OBS_HAND, OBS_POINTCLOUD
+from lerobot_opfa.features import OBS_EMBODIMENT, OBS_HAND, OBS_POINTCLOUD
 
 if TYPE_CHECKING:  # the GaLR and hand models import FK and mesh libraries: only when a step is built
     from lerobot_opfa.galr.model import Galr
@@ -298,7 +298,7 @@ class OpfaDecodeJointsStep(_HandSpace, ProcessorStep):
 
 
 def _encode(galr: Galr, hand: str, q: torch.Tensor) -> torch.Tensor:
-    from lerobot_opfa.policy.galr_ref import encode_joints
+    from lerobot_opfa.galr.frozen import encode_joints
 
     return encode_joints(galr, hand, q)
 

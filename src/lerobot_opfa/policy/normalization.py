@@ -28,7 +28,7 @@ from lerobot.configs import NormalizationMode
 from lerobot.processor import ProcessorStep, ProcessorStepRegistry, TransitionKey
 from lerobot.utils.constants import ACTION, OBS_STATE
 
-from lerobot_opfa.policy.configuration_opfa import OBS_EMBODIMENT
+from lerobot_opfa.features import OBS_EMBODIMENT
 from lerobot_opfa.policy.joint_steps import embodiment_ids
 
 logger = logging.getLogger(__name__)

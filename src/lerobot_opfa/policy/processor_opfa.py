@@ -31,12 +31,13 @@ from lerobot.utils.constants import ACTION, OBS_STATE
 
 from lerobot_opfa.datasets.io import read_columns
 from lerobot_opfa.datasets.layout import DatasetLayout, latent_names, opfa_record, read_layout
+from lerobot_opfa.features import OBS_EMBODIMENT
 from lerobot_opfa.galr import checkpoints
+from lerobot_opfa.galr.frozen import galr_fingerprint, known_hand_refs, load_galr
 from lerobot_opfa.galr.model import Galr
 from lerobot_opfa.hands.registry import load_spec
 from lerobot_opfa.hands.universal import UNIVERSAL_INDEX, UNIVERSAL_JOINT_NAMES, UNIVERSAL_JOINTS
-from lerobot_opfa.policy.configuration_opfa import OBS_EMBODIMENT, OpfaConfig
-from lerobot_opfa.policy.galr_ref import galr_fingerprint, known_hand_refs, load_galr
+from lerobot_opfa.policy.configuration_opfa import OpfaConfig
 from lerobot_opfa.policy.joint_steps import OpfaDecodeJointsStep, OpfaEncodeJointsStep, PointCloudBatchStep
 from lerobot_opfa.policy.normalization import (
     PRISMATIC_NOISE,

@@ -16,7 +16,7 @@ from pathlib import Path
 from lerobot.configs import PreTrainedConfig
 from lerobot.policies.factory import make_pre_post_processors
 
-from lerobot_opfa.policy.galr_ref import galr_hand_refs, load_galr
+from lerobot_opfa.galr.frozen import galr_hand_refs, load_galr
 from lerobot_opfa.policy.joint_steps import OpfaDecodeJointsStep, OpfaEncodeJointsStep
 
 

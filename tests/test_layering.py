@@ -1,0 +1,36 @@
+"""The package's layers: hand models and GaLR load without LeRobot or gymnasium, and the simulator knows
+nothing of the learner."""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+SRC = Path(__file__).parents[1] / "src" / "lerobot_opfa"
+
+
+def test_hands_and_galr_import_without_lerobot_or_gymnasium():
+    code = (
+        "import lerobot_opfa.hands, lerobot_opfa.galr.model, sys; "
+        "print([m for m in sys.modules if m.startswith(('lerobot.', 'gymnasium'))])"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "[]"
+
+
+def _imports(path: Path) -> set[str]:
+    tree = ast.parse(path.read_text())
+    return {node.module for node in ast.walk(tree) if isinstance(node, ast.ImportFrom) and node.module} | {
+        alias.name for node in ast.walk(tree) if isinstance(node, ast.Import) for alias in node.names
+    }
+
+
+def test_no_simulator_module_imports_the_policy():
+    offenders = {
+        str(path.relative_to(SRC)): sorted(m for m in _imports(path) if m.startswith("lerobot_opfa.policy"))
+        for path in sorted((SRC / "envs").glob("*.py"))
+    }
+    assert {k: v for k, v in offenders.items() if v} == {}
