@@ -14,8 +14,9 @@ import pytest
 import torch
 
 from lerobot_opfa.galr.data import hand_counts, make_batch, masked_rmse, sample_batch
+from lerobot_opfa.galr.evaluate import evaluate
 from lerobot_opfa.galr.kpconv import kernel_points
-from lerobot_opfa.galr.model import Galr, GalrConfig, hand_record
+from lerobot_opfa.galr.model import Galr, GalrConfig, hand_record, joint_scale
 from lerobot_opfa.galr.train import PretrainConfig, pretrain
 from lerobot_opfa.hands import HandModel, load_hand
 from lerobot_opfa.hands.registry import hand_models_dir
@@ -48,10 +49,10 @@ def test_shapes_for_every_ablation(overrides):
     for hand in HANDS:
         z = galr.encode_joints(hand, _joints(hand, 3))
         assert z.shape == (3, 16) and torch.isfinite(z).all()
-        q = galr.decode(z, hand)
-        model = load_hand(hand)
-        assert q.shape == (3, model.dof)
-        assert (q >= model.lower).all() and (q <= model.upper).all()
+        q, model = galr.decode(z, hand), load_hand(hand)
+        raw = galr.decode_scaled(z, hand) / joint_scale(model)  # before the clamp to the joint limits
+        assert q.shape == raw.shape == (3, model.dof)
+        assert torch.equal(q, torch.maximum(torch.minimum(raw, model.upper), model.lower))
 
 
 @pytest.mark.parametrize("target", ["features", "attention"])
@@ -209,8 +210,10 @@ def test_cli_pretrain_eval_embed_decode(tmp_path):
     assert result.returncode == 0, result.stderr[-2000:]
     report = json.loads(report_path.read_text())
     assert set(report["hands"]) == {"umi", "inspire"}
-    for metrics in report["hands"].values():
-        assert metrics["joint_rmse_deg"] > 0 and metrics["fingertip_error_mm"] > 0
+    direct = evaluate(Galr.from_pretrained(run).eval(), ["umi", "inspire"], 8, seed=1)  # the CLI's defaults
+    for hand, metrics in report["hands"].items():
+        assert metrics["joint_rmse_deg"] == pytest.approx(direct["hands"][hand]["joint_rmse_deg"])
+        assert metrics["fingertip_error_mm"] == pytest.approx(direct["hands"][hand]["fingertip_error_mm"])
     assert "prismatic_rmse_mm" in report["hands"]["umi"]
     assert plot.read_bytes()[:4] == b"\x89PNG" and (tmp_path / "clouds.png").is_file()
 
