@@ -98,11 +98,24 @@ def test_every_policy_is_tested_on_each_of_its_hands_own_demos(cells):
         if c.kind == protocols.IN_DISTRIBUTION
     }
     trainings = {c.evaluation.training for c in cells}
-    assert inside == {(t, d.hand, d.task, d.regions) for t in trainings for d in t.demos}
+    assert inside == {(t, d.hand, d.task, d.covered) for t in trainings for d in t.demos}
     first = {}  # a policy's ceiling comes before its transfer cells
     for i, c in enumerate(cells):
         first.setdefault((c.evaluation.training, c.kind), i)
     assert all(first[(t, protocols.IN_DISTRIBUTION)] < first[(t, protocols.TRANSFER)] for t in trainings)
+
+
+def test_in_distribution_is_where_the_demos_are():
+    """k demos take the regions in turn: with fewer demos than regions, the others have none."""
+    cells = protocols.fewshot(get_scale("small"), "press_button", "inspire", "xhand")
+    inside = {
+        (c.group, c.evaluation.hand): c.evaluation.regions
+        for c in cells
+        if c.kind == protocols.IN_DISTRIBUTION
+    }
+    assert inside[("1", "inspire")] == tuple(REGIONS)[:1]
+    assert inside[("4", "inspire")] == tuple(REGIONS)[:4]
+    assert inside[("12", "inspire")] == inside[("1", "xhand")] == tuple(REGIONS)
 
 
 def test_object_protocol_tests_each_hand_on_the_other_object():

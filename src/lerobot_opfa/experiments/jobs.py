@@ -38,6 +38,12 @@ class Demos:
     def name(self) -> str:
         return f"{self.task}-{self.hand}-{regions_tag(self.regions)}-{self.episodes}ep-s{self.seed}"
 
+    @property
+    def covered(self) -> tuple[str, ...]:
+        """The regions the episodes reach: they take the regions in turn, so fewer episodes than regions
+        leave the rest without a demo."""
+        return self.regions[: self.episodes]
+
 
 @dataclass(frozen=True)
 class Training:

@@ -9,8 +9,8 @@ which embodiment to test where); `jobs.Workspace` runs the cells, `report` tabul
 - nine: nine embodiments, one region and eight demos each, tested on the whole table (the nine-embodiment
   figure).
 
-Every trained policy is also tested where it has data: each of its embodiments on its own demos' task and
-regions (`IN_DISTRIBUTION` cells). That ceiling tells a transfer failure from a policy that fails at all.
+Every trained policy is also tested where it has data: each of its embodiments on its own demos' task, in
+the regions its demos reach (`IN_DISTRIBUTION` cells). That ceiling tells a transfer failure from a policy that fails at all.
 """
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ NINE_HANDS = (
 
 
 TRANSFER, IN_DISTRIBUTION = "transfer", "in_distribution"
-"""Cell kinds: the experiment's measurement, and the policy tested on its own demos' task and regions."""
+"""Cell kinds: the experiment's measurement, and the policy tested where its own demos are."""
 
 
 @dataclass(frozen=True)
@@ -79,9 +79,9 @@ def _check_conditions(conditions: tuple[str, ...]) -> tuple[str, ...]:
 
 
 def in_distribution(group: str, training: Training) -> list[Cell]:
-    """The policy tested with each of its embodiments on that embodiment's own demos."""
+    """The policy tested with each of its embodiments where that embodiment's own demos are."""
     return [
-        Cell(group, Evaluation(training, d.task, d.hand, d.regions), IN_DISTRIBUTION) for d in training.demos
+        Cell(group, Evaluation(training, d.task, d.hand, d.covered), IN_DISTRIBUTION) for d in training.demos
     ]
 
 
@@ -168,7 +168,7 @@ def fewshot(
         new = Demos(task, new_hand, everywhere, k, seed)
         for condition in _check_conditions(conditions):
             training = Training(condition, (new,) if condition == "wo_cotrain" else (new, other), seed)
-            cells += in_distribution(str(k), training)  # the new hand's is the measurement itself
+            cells += in_distribution(str(k), training)  # the new hand's: where its k demos are
             cells.append(Cell(str(k), Evaluation(training, task, new_hand, everywhere)))
     return cells
 

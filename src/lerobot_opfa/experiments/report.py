@@ -156,7 +156,7 @@ def tables(rows: list[dict]) -> str:
             "own demos (in distribution, below): a failing policy, not a transfer result.\n"
         )
     if inside:
-        text += "\nIn distribution (each policy on its own demos' task and regions):\n\n"
+        text += "\nIn distribution (each policy on its own demos' task, in the regions they reach):\n\n"
         text += markdown_table(inside)
     return text + failure_table(transfer)
 
