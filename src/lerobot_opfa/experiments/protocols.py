@@ -10,7 +10,8 @@ which embodiment to test where); `jobs.Workspace` runs the cells, `report` tabul
   figure).
 
 Every trained policy is also tested where it has data: each of its embodiments on its own demos' task, in
-the regions its demos reach (`IN_DISTRIBUTION` cells). That ceiling tells a transfer failure from a policy that fails at all.
+the regions its demos reach (`IN_DISTRIBUTION` cells). That ceiling tells a transfer failure from a policy
+that fails at all.
 """
 
 from __future__ import annotations
