@@ -43,8 +43,8 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     pre.add_argument(
         "--shares",
         choices=("dof", "even"),
-        default="dof",
-        help="batch shares per hand: by joint count, or equal",
+        help="batch shares per hand: by joint count (default), or equal (default with --init: a 1-joint "
+        "gripper the checkpoint already knows to 0.1 deg keeps it only with its share of every batch)",
     )
     pre.add_argument("--lr", type=float, default=1e-3)
     pre.add_argument("--output-dir", type=Path, required=True)
@@ -147,7 +147,7 @@ def _pretrain(args: argparse.Namespace) -> int:
         anchor=args.anchor,
         steps=args.steps,
         batch_size=args.batch_size,
-        shares=args.shares,
+        shares=args.shares or ("even" if args.init else "dof"),
         lr=args.lr,
         validate_every=args.validate_every,
         save_every=args.save_every,
