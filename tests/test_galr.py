@@ -121,6 +121,13 @@ def test_batch_shares_follow_joint_counts():
         hand_counts(dofs, 20, "uniform", generator)
 
 
+def test_hands_being_added_get_half_of_every_batch():
+    galr, generator = tiny_galr(), torch.Generator().manual_seed(0)
+    batch = sample_batch(galr, HANDS, 21, generator, "even", focus=(HANDS[-1],))
+    sizes = {name: rows.stop - rows.start for name, rows, _ in batch.groups}
+    assert sizes[HANDS[-1]] == 10 and sum(sizes.values()) == 21
+
+
 def test_masked_loss_ignores_joints_a_hand_lacks():
     galr = tiny_galr().train()
     batch = sample_batch(galr, ["inspire"], 6, torch.Generator().manual_seed(0), "dof")

@@ -99,10 +99,6 @@ def anchor_drift(anchor: Galr, batch: HandBatch, z: torch.Tensor, new_hands: tup
     return (z[rows.to(z.device)] - reference).square().mean() / reference.var().clamp(min=1e-8)
 
 
-def _registry(init: str) -> list[str]:
-    return checkpoints.load(init).config.hand_names
-
-
 def extended(init: str, hands: list[str]) -> Galr:
     """The GaLR `init` with the hands it lacks (names or spec paths) added to its registry."""
     galr = checkpoints.load(init)
@@ -115,7 +111,9 @@ def extended(init: str, hands: list[str]) -> Galr:
     new = [r for r in records if r["name"] not in known]
     if not new:
         raise ValueError(f"--init {init} already has every hand asked for ({', '.join(sorted(known))})")
-    grown = Galr(replace(galr.config, hands=[*galr.config.hands, *new]))  # the saved config is the init's
+    grown = Galr(
+        replace(galr.config, hands=[*galr.config.hands, *new])
+    )  # saved with the config it is built with
     grown.load_state_dict(galr.state_dict())
     return grown
 
@@ -161,8 +159,10 @@ def pretrain(config: PretrainConfig) -> Galr:
         logger.info("resumed from %s at step %d", checkpoint, step)
 
     held_out = validation_joints(model, config.hands, config.validation_states, config.seed)
-    new_hands = tuple(h for h in config.hands if h not in _registry(config.init)) if config.init else ()
-    anchor = checkpoints.load(config.init).to(accelerator.device).requires_grad_(False) if new_hands else None
+    anchor = (
+        checkpoints.load(config.init).to(accelerator.device).requires_grad_(False) if config.init else None
+    )
+    new_hands = tuple(h for h in config.hands if h not in anchor.config.hand_names) if anchor else ()
     output_dir.mkdir(parents=True, exist_ok=True)
     (output_dir / "pretrain_config.json").write_text(json.dumps(asdict(config), indent=2, default=str))
     metrics = (output_dir / "metrics.jsonl").open("a")
