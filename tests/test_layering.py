@@ -34,3 +34,17 @@ def test_no_simulator_module_imports_the_policy():
         for path in sorted((SRC / "envs").glob("*.py"))
     }
     assert {k: v for k, v in offenders.items() if v} == {}
+
+
+def test_the_plugin_module_registers_the_policy_env_and_processor_steps():
+    code = (
+        "import lerobot_policy_opfa; from lerobot.configs import PreTrainedConfig; "
+        "from lerobot.envs.configs import EnvConfig; from lerobot.processor import ProcessorStepRegistry; "
+        "print(PreTrainedConfig.get_choice_class('opfa').__name__, "
+        "EnvConfig.get_choice_class('opfa').__name__, "
+        "all(n in ProcessorStepRegistry.list() for n in ('opfa_encode_joints', 'opfa_decode_joints', "
+        "'opfa_normalize')))"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert result.stdout.split() == ["OpfaConfig", "OpfaEnvConfig", "True"]

@@ -2,4 +2,6 @@
 `opfa` env type and gymnasium ids, and the `opfa` policy with its processor steps."""
 
 from lerobot_opfa.envs import config as _env_config  # noqa: F401
-from lerobot_opfa.policy import normalization as _policy  # noqa: F401
+from lerobot_opfa.policy import configuration_opfa as _policy_config  # noqa: F401
+from lerobot_opfa.policy import joint_steps as _joint_steps  # noqa: F401
+from lerobot_opfa.policy import normalization as _normalization  # noqa: F401
