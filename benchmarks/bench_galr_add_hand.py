@@ -28,13 +28,6 @@ import matplotlib.pyplot as plt  # noqa: E402
 
 ROOT = Path(__file__).parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
-WRAPPER = """<mujoco model="shadow_hand">
-  <compiler angle="radian" meshdir="../stls/hand"/>
-  <include file="shared.xml"/>
-  <asset><include file="shared_asset.xml"/></asset>
-  <worldbody><include file="robot.xml"/></worldbody>
-</mujoco>
-"""
 
 
 def shadow_spec(folder: Path) -> Path:
@@ -45,7 +38,7 @@ def shadow_spec(folder: Path) -> Path:
     assets = Path(found.submodule_search_locations[0]) / "envs" / "assets"
     shutil.copytree(assets / "hand", folder / "assets" / "hand")
     shutil.copytree(assets / "stls" / "hand", folder / "assets" / "stls" / "hand")
-    (folder / "assets" / "hand" / "shadow_hand.xml").write_text(WRAPPER)
+    shutil.copy(ROOT / "tests" / "data" / "user_shadow_mjcf" / "shadow_hand.xml", folder / "assets" / "hand")
     spec = folder / "spec.yaml"
     text = (ROOT / "tests" / "data" / "user_shadow_mjcf" / "spec.yaml").read_text()
     spec.write_text(text.replace("MODEL_PATH", str(folder / "assets" / "hand" / "shadow_hand.xml")))

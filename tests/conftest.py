@@ -37,17 +37,6 @@ def user_allegro_spec(tmp_path: Path) -> Path:
     return spec
 
 
-SHADOW_WRAPPER = """<mujoco model="shadow_hand">
-  <compiler angle="radian" meshdir="../stls/hand"/>
-  <include file="shared.xml"/>
-  <asset><include file="shared_asset.xml"/></asset>
-  <worldbody><include file="robot.xml"/></worldbody>
-</mujoco>
-"""
-"""gymnasium-robotics' hand/robot.xml is a fragment with its defaults and assets in two more files: the
-wrapper a user writes beside it."""
-
-
 def gymnasium_robotics_assets() -> Path:
     found = importlib.util.find_spec("gymnasium_robotics")
     if found is None:
@@ -62,7 +51,7 @@ def user_shadow_spec(tmp_path: Path) -> Path:
     shutil.copytree(assets / "hand", tmp_path / "assets" / "hand")
     shutil.copytree(assets / "stls" / "hand", tmp_path / "assets" / "stls" / "hand")
     wrapper = tmp_path / "assets" / "hand" / "shadow_hand.xml"
-    wrapper.write_text(SHADOW_WRAPPER)
+    shutil.copy(DATA / "user_shadow_mjcf" / "shadow_hand.xml", wrapper)
     spec = tmp_path / "user_shadow" / "spec.yaml"
     spec.parent.mkdir()
     spec.write_text((DATA / "user_shadow_mjcf" / "spec.yaml").read_text().replace("MODEL_PATH", str(wrapper)))
