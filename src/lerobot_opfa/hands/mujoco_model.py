@@ -39,6 +39,8 @@ def hand_mjspec(hand: HandModel, kp: dict[str, float] | None = None) -> mujoco.M
             spec.delete(equality)
     for element in [*spec.tendons, *spec.pairs]:  # vendor tendon couplings and explicit self-contacts
         spec.delete(element)
+    for size in ("njmax", "nconmax", "nstack", *(a for a in dir(spec) if a.startswith("nuser_"))):
+        setattr(spec, size, -1)  # sizes are the scene's to set (MuJoCo's default -1: as needed)
     for i, joint in enumerate(hand.joint_names):
         kind = UNIVERSAL_JOINTS[UNIVERSAL_INDEX[hand.universal_names[i]]].kind
         actuator = spec.add_actuator(name=f"act_{joint}", target=joint, trntype=mujoco.mjtTrn.mjTRN_JOINT)
