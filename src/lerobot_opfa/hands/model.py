@@ -105,7 +105,11 @@ class HandModel:
         hand_links = set(self.model_file.link_meshes) - set(spec.ignored_links)
         self.link_names = sorted(hand_links, key=self.model_file.link_names.index)
         self._samples: dict[tuple[int, int, int], SurfaceSamples] = {}
-        self._hand_from_model = torch.linalg.inv(self._model_from_hand())
+        hand_from_model = torch.linalg.inv(self._model_from_hand())
+        identity = torch.allclose(hand_from_model, torch.eye(4, dtype=torch.float64))
+        # (4, 4) float64 model root frame -> hand frame, from the spec's `base`; None when they coincide
+        # (every built-in hand), so that FK, on every cloud, pays nothing for it.
+        self.base_transform = None if identity else hand_from_model
         self.to(device, dtype)
 
     def _model_from_hand(self) -> torch.Tensor:
@@ -149,7 +153,11 @@ class HandModel:
         )
         self.lower, self.upper = self._lower.to(**cast), self._upper.to(**cast)
         self.lower_all, self.upper_all = self._lower_all.to(**cast), self._upper_all.to(**cast)
-        self.hand_from_model = self._hand_from_model.to(**cast)
+        self._base = None if self.base_transform is None else self.base_transform.to(**cast)
+        # Each actuated joint's place in the universal table, and -1 where the spec flips its sense into the
+        # table's: read on every batch the processors and the GaLR decoder convert, so built once here.
+        self.universal_index = torch.tensor([UNIVERSAL_INDEX[u] for u in self.universal_names], device=device)
+        self.universal_sign = torch.tensor([self.spec.signs.get(j, 1.0) for j in self.joint_names], **cast)
         self._samples.clear()
         return self
 
@@ -175,17 +183,6 @@ class HandModel:
     @property
     def universal_names(self) -> list[str]:
         return self.spec.universal_names
-
-    @property
-    def universal_index(self) -> torch.Tensor:
-        """Position of each actuated joint in the universal joint table."""
-        return torch.tensor([UNIVERSAL_INDEX[u] for u in self.universal_names], device=self.device)
-
-    @property
-    def universal_sign(self) -> torch.Tensor:
-        """(dof,) +1, or -1 where the spec flips a joint's sense into the universal table's."""
-        signs = [self.spec.signs.get(j, 1.0) for j in self.joint_names]
-        return torch.tensor(signs, device=self.device, dtype=self.dtype)
 
     def to_universal(self, q: torch.Tensor) -> torch.Tensor:
         """(..., dof) this hand's joints -> (..., universal joints), zero where the hand has none."""
@@ -239,7 +236,8 @@ class HandModel:
     def link_poses(self, q: torch.Tensor, links: list[str]) -> torch.Tensor:
         """(B, dof) -> (B, len(links), 4, 4) hand-frame poses of any model links."""
         frames = self.chain.forward_kinematics(self.expand(q.to(self.device, self.dtype)))
-        return self.hand_from_model @ torch.stack([frames[link].get_matrix() for link in links], dim=1)
+        poses = torch.stack([frames[link].get_matrix() for link in links], dim=1)
+        return poses if self._base is None else self._base @ poses
 
     # --- point clouds -------------------------------------------------------------------------------
     def surface_samples(

@@ -84,9 +84,9 @@ def hand_mjspec(hand: HandModel, kp: dict[str, float] | None = None) -> mujoco.M
 
 def _place_in_hand_frame(spec: mujoco.MjSpec, hand: HandModel) -> None:
     """Re-pose the model's top-level bodies by the spec's `base`, so MuJoCo's world is the hand frame."""
-    transform = hand._hand_from_model.numpy()
-    if np.allclose(transform, np.eye(4)):
+    if hand.base_transform is None:
         return
+    transform = hand.base_transform.numpy()
     compiled = spec.compile()
     rotation = np.zeros(4)
     mujoco.mju_mat2Quat(rotation, transform[:3, :3].flatten())
