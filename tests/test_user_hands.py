@@ -233,3 +233,16 @@ def test_per_embodiment_trains_and_acts_on_a_user_hand_without_a_galr(user_shado
     with torch.no_grad():
         action = post(policy.select_action(pre({**observation, "task": frame["task"]})))
     assert action.shape == (1, frame["action"].shape[0])
+
+
+def test_a_user_hand_named_like_a_builtin_is_the_users(tmp_path):
+    """A copy of a built-in spec elsewhere (edited, say) is a user hand: recorded, and read back as itself."""
+    spec = tmp_path / "my_inspire" / "spec.yaml"
+    shutil.copytree(hand_models_dir() / "inspire", spec.parent)
+    demos = tmp_path / "demos"
+    code = main(["sim", "demos", "--task", "press_button", "--hand", str(spec), "--episodes", "1",
+                 "--n-points", "16", "--output-dir", str(demos)])  # fmt: skip
+    assert code == 0
+    assert json.loads((demos / "meta" / "opfa.json").read_text())["hands"]["inspire"]["spec"] == str(spec)
+    info = json.loads((demos / "meta" / "info.json").read_text())
+    assert read_layout(info["features"], info["robot_type"], demos).hand_refs == [str(spec)]

@@ -19,7 +19,7 @@ from pathlib import Path
 from lerobot.utils.constants import ACTION, OBS_STATE
 
 from lerobot_opfa.features import OBS_EMBODIMENT
-from lerobot_opfa.hands.registry import builtin_hands, load_spec
+from lerobot_opfa.hands.registry import builtin_hands, hand_ref, load_spec
 from lerobot_opfa.hands.spec import HandSpec
 from lerobot_opfa.hands.universal import UNIVERSAL_JOINT_NAMES
 
@@ -129,10 +129,10 @@ def hand_entry(spec: HandSpec) -> dict[str, str]:
     return {"spec": str(spec.path), "sha256": spec.sha256}
 
 
-def recorded_hands(root: Path | str | None) -> dict[str, str]:
-    """User hands a dataset records, name -> spec path, each checked against its recorded hash."""
+def recorded_hands(root: Path | str | None, record: dict) -> dict[str, str]:
+    """User hands a dataset's record names, name -> spec path, each checked against its recorded hash."""
     hands = {}
-    for name, entry in opfa_record(root).get("hands", {}).items():
+    for name, entry in record.get("hands", {}).items():
         path = Path(entry["spec"])
         if not path.is_file():
             raise ValueError(
@@ -148,18 +148,14 @@ def recorded_hands(root: Path | str | None) -> dict[str, str]:
     return hands
 
 
-def _ref(spec: HandSpec) -> str:
-    builtin = builtin_hands().get(spec.name)
-    return spec.name if builtin is not None and builtin.resolve() == spec.path else str(spec.path)
-
-
 def read_layout(
     features: dict, robot_type: str | None = None, root: Path | str | None = None, hands=None
 ) -> DatasetLayout:
     """The layout of a dataset from its features and what `meta/opfa.json` under `root` records. `hands`:
     the hands (names or spec paths) it may hold besides the built-ins and the ones it records."""
-    recorded = recorded_hands(root)
-    candidates = [*_hand_candidates(hands), *recorded.values()]
+    record = opfa_record(root)
+    # The hands the dataset records come first: a user's hand named like a built-in is the user's.
+    candidates = [*recorded_hands(root, record).values(), *_hand_candidates(hands)]
     names = feature_names(features, OBS_STATE)
     if ACTION in features and feature_names(features, ACTION) != names:
         raise JointNameError(
@@ -175,15 +171,17 @@ def read_layout(
         wrist, rest = names[: starts[0]], names[starts[0] + len(universal) :]
         if rest and rest != latent_names(len(rest)):
             raise JointNameError(f"unexpected entries after the universal joints: {rest}")
-        specs = {s.name: s for s in map(load_spec, candidates)}
+        specs = {}
+        for spec in map(load_spec, candidates):
+            specs.setdefault(spec.name, spec)
         unknown = [h for h in embodiments if h not in specs]
         if unknown:
             raise ValueError(
                 f"{root}: hand(s) {unknown} are neither built in nor recorded by the dataset (meta/opfa.json)"
             )
-        refs = [_ref(specs[h]) for h in embodiments]
-        fingerprint = opfa_record(root).get("galr_fingerprint")
+        refs = [hand_ref(specs[h]) for h in embodiments]
+        fingerprint = record.get("galr_fingerprint")
         return DatasetLayout("merged", embodiments, refs, wrist, [], len(rest), fingerprint)
     spec = identify_hand(names, robot_type, candidates)
     wrist, joints = split_native_names(names, spec)
-    return DatasetLayout("native", [spec.name], [_ref(spec)], wrist, joints)
+    return DatasetLayout("native", [spec.name], [hand_ref(spec)], wrist, joints)

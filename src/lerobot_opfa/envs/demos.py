@@ -18,7 +18,7 @@ from lerobot_opfa.envs.config import ENV_STATE_DIM, EPISODE_STEPS, OBS_POINTCLOU
 from lerobot_opfa.envs.env import OpfaSimEnv
 from lerobot_opfa.envs.experts import ScriptedExpert
 from lerobot_opfa.envs.regions import parse_regions
-from lerobot_opfa.hands.registry import builtin_hands
+from lerobot_opfa.hands.registry import hand_ref
 
 logger = logging.getLogger(__name__)
 
@@ -158,7 +158,7 @@ def _record(env: OpfaSimEnv, episodes: int, root: Path, region_names: list[str],
     }
     (Path(root) / "meta" / META_FILE).write_text(json.dumps({**meta, "episodes": records}, indent=2))
     spec = env.hand_model.spec
-    if spec.name not in builtin_hands():
+    if hand_ref(spec) != spec.name:  # a user's hand: later commands find it from the dataset
         (Path(root) / OPFA_META_FILE).write_text(
             json.dumps({"hands": {spec.name: hand_entry(spec)}}, indent=2)
         )

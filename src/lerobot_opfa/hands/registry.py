@@ -37,6 +37,13 @@ def resolve_spec_path(hand: str | Path) -> Path:
     )
 
 
+def hand_ref(spec: HandSpec) -> str:
+    """What `load_hand` takes for this spec: the built-in's name when it is the built-in's file, else its
+    path (a user hand, even one named like a built-in)."""
+    builtin = builtin_hands().get(spec.name)
+    return spec.name if builtin is not None and builtin.resolve() == spec.path else str(spec.path)
+
+
 def load_spec(hand: str | Path) -> HandSpec:
     return HandSpec.load(resolve_spec_path(hand))
 
