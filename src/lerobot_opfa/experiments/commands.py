@@ -98,8 +98,8 @@ def scale_of(args: argparse.Namespace) -> Scale:
     return replace(scale, name=f"{scale.name}_{args.epochs:g}ep", epochs=args.epochs)
 
 
-def cells_of(args: argparse.Namespace) -> list[protocols.Cell]:
-    scale, conditions = scale_of(args), _names(args.conditions)
+def cells_of(args: argparse.Namespace, scale: Scale) -> list[protocols.Cell]:
+    conditions = _names(args.conditions)
     if args.experiment == "spatial":
         return protocols.spatial(
             scale, _names(args.tasks), _names(args.hands), _names(args.more_hands), conditions, args.seed
@@ -118,7 +118,8 @@ def run(args: argparse.Namespace) -> int:
     if args.workers < 1:
         raise ValueError(f"--workers must be at least 1, not {args.workers}")
     start, run_id = time.monotonic(), datetime.now().isoformat()
-    cells, scale = cells_of(args), scale_of(args)
+    scale = scale_of(args)
+    cells = cells_of(args, scale)
     name = f"{args.experiment}_{scale.name}"
     root = args.output_dir or Path("outputs/experiments") / name
     threads = max(1, (os.cpu_count() or 1) // args.workers) if args.workers > 1 else None
