@@ -460,6 +460,23 @@ def test_save_load_identical_actions_and_processors_by_name(data, tmp_path):
     assert OpfaPolicy.from_pretrained(tmp_path).config.embodiment_joints == loaded.config.embodiment_joints
 
 
+@pytest.mark.parametrize("space", ["galr", "per_embodiment", "raw"])
+def test_checkpoints_saved_by_an_earlier_version_give_the_same_actions(space):
+    """Checkpoints written by `tests/data/checkpoints_v1/make.py` at an earlier commit act as they did."""
+    from safetensors.torch import load_file
+
+    folder = Path(__file__).parent / "data" / "checkpoints_v1"
+    expected = load_file(folder / "actions.safetensors")
+    policy = OpfaPolicy.from_pretrained(folder / space).eval()
+    hands = HANDS if space != "raw" else ["inspire"]
+    saved = sorted(k for k in expected if k.startswith(space + "/"))
+    assert saved == sorted(f"{space}/{h}" for h in [*hands, "cloud"])
+    pre, post = make_pre_post_processors(policy.config, pretrained_path=str(folder / space))
+    for hand in hands:  # in the order they were made
+        actions = rollout(policy, pre, post, hand, expected[f"{space}/cloud"])
+        assert torch.allclose(actions, expected[f"{space}/{hand}"], atol=1e-5), hand
+
+
 def test_interleaved_pipelines_of_one_checkpoint_never_mix_hands(data, tmp_path):
     """Two hands through two pipelines loaded from one checkpoint (they share its link): postprocessors
     that learn their hand from the preprocessor refuse; given their hand, each decodes its own actions."""
