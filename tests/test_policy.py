@@ -34,9 +34,10 @@ from lerobot_opfa.datasets.synthetic import write_synthetic_dataset
 from lerobot_opfa.features import OBS_EMBODIMENT, OBS_POINTCLOUD
 from lerobot_opfa.galr.model import Galr, GalrConfig, hand_record
 from lerobot_opfa.hands import load_hand
+from lerobot_opfa.policy.action_spaces import ACTION_SPACES
 from lerobot_opfa.policy.configuration_opfa import OpfaConfig
 from lerobot_opfa.policy.joint_steps import OpfaEncodeJointsStep
-from lerobot_opfa.policy.modeling_opfa import OpfaPolicy, policy_width
+from lerobot_opfa.policy.modeling_opfa import OpfaPolicy
 from lerobot_opfa.policy.normalization import OpfaNormalizeStep, OpfaUnnormalizeStep
 from lerobot_opfa.policy.processor_opfa import make_opfa_pre_post_processors
 from lerobot_opfa.policy.stock_io import convert_policy_io
@@ -245,7 +246,30 @@ def test_policy_width_comes_from_the_config_alone(space, width):
     joints = [["index_mcp_flex", "thumb_mcp_flex"]]
     config = OpfaConfig(**POLICY, action_space=space, embodiments=["user_hand"], embodiment_joints=joints,
                         wrist_names=list("xyzabc"), latent_dim=8)  # fmt: skip
-    assert policy_width(config) == width  # 28 universal joints
+    assert config.policy_width == width  # 28 universal joints
+
+
+@pytest.mark.parametrize("space", sorted(ACTION_SPACES))
+def test_each_action_space_maps_joints_in_and_out_with_a_mask_of_its_width(data, space):
+    """Native joints and a merged dataset's universal joints reach the same policy-space rows, which map
+    back to the joints (exactly without a GaLR); the loss mask marks the entries a hand has."""
+    pair = ["inspire", "leap"]
+    galr = Galr.from_pretrained(data / "galr")
+    hands = OpfaEncodeJointsStep(action_space=space, embodiments=pair, hand_refs=pair, galr=galr)
+    action_space = ACTION_SPACES[space]
+    mask = action_space.hand_mask(hands.latent_dim, hands.embodiment_joints or [[], []])
+    width = action_space.hand_width(hands.latent_dim, hands.embodiment_joints)
+    assert mask.shape == (2, width)
+    for index in range(1 if space == "raw" else 2):
+        model = hands.model(index)
+        q = model.sample_joints(4, generator=torch.Generator().manual_seed(index))
+        rows = action_space.from_joints(hands, index, q)
+        ids = torch.full((4,), index)
+        assert torch.equal(rows, action_space.from_universal(hands, model.to_universal(q), ids))
+        assert rows.shape == (4, width)
+        if space != "galr":
+            assert torch.equal(action_space.to_joints(hands, index, rows), q)
+            assert mask[index].sum() == (width if space == "raw" else model.dof)
 
 
 # --- datasets ----------------------------------------------------------------------------------------

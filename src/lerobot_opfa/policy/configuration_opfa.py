@@ -15,8 +15,8 @@ from lerobot.optim.schedulers import CosineDecayWithWarmupSchedulerConfig
 from lerobot.utils.constants import ACTION, OBS_STATE
 
 from lerobot_opfa.features import OBS_POINTCLOUD
+from lerobot_opfa.policy.action_spaces import ACTION_SPACES, ActionSpace
 
-ACTION_SPACES = ("galr", "raw", "per_embodiment")
 WRIST_NORMALIZATIONS = ("per_embodiment", "shared")
 
 
@@ -25,11 +25,8 @@ WRIST_NORMALIZATIONS = ("per_embodiment", "shared")
 class OpfaConfig(PreTrainedConfig):
     """DP3 (point-cloud diffusion policy) whose hand state and action are GaLR latents.
 
-    `action_space` picks the method or a baseline of the paper's tables:
-    - `galr`: state = wrist pose + z = GaLR(hand joints), action = wrist pose + z (OPFA);
-    - `raw`: one embodiment, its raw joints ("w/o co-train");
-    - `per_embodiment`: universal-joint layout, shared trunk, one action head per embodiment
-      ("naive co-train").
+    `action_space` picks the method or a baseline of the paper's tables (`action_spaces`): `galr` (OPFA),
+    `raw` ("w/o co-train") or `per_embodiment` ("naive co-train").
     """
 
     n_obs_steps: int = 2
@@ -125,11 +122,17 @@ class OpfaConfig(PreTrainedConfig):
             )
         if not 0 < self.num_inference_steps <= self.num_train_timesteps:
             raise ValueError("need 0 < num_inference_steps <= num_train_timesteps")
-        if self.action_space == "raw" and len(self.embodiments) > 1:
-            raise ValueError(
-                f"action_space 'raw' trains one embodiment, got {self.embodiments}; "
-                "use 'per_embodiment' or 'galr' for several"
-            )
+        if self.embodiments:
+            self.space.check_embodiments(self.embodiments)
+
+    @property
+    def space(self) -> ActionSpace:
+        return ACTION_SPACES[self.action_space]
+
+    @property
+    def policy_width(self) -> int:
+        """Width of the policy's state and action vectors: the wrist's entries, then the space's."""
+        return len(self.wrist_names) + self.space.hand_width(self.latent_dim, self.embodiment_joints)
 
     @property
     def drop_n_last_frames(self) -> int:

@@ -19,18 +19,20 @@ import gc
 import weakref
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import torch
 from lerobot.configs.types import PipelineFeatureType, PolicyFeature
 from lerobot.processor import ObservationProcessorStep, ProcessorStep, ProcessorStepRegistry, TransitionKey
 from lerobot.utils.constants import ACTION, OBS_STATE
 
-from lerobot_opfa.features import OBS_EMBODIMENT, OBS_HAND, OBS_POINTCLOUD
-
-if TYPE_CHECKING:  # the GaLR and hand models import FK and mesh libraries: only when a step is built
-    from lerobot_opfa.galr.model import Galr
-    from lerobot_opfa.hands.model import HandModel
+from lerobot_opfa.features import OBS_EMBODIMENT, OBS_HAND, OBS_POINTCLOUD, batch_embodiments
+from lerobot_opfa.galr.frozen import encode_joints
+from lerobot_opfa.galr.model import Galr
+from lerobot_opfa.hands.model import HandModel
+from lerobot_opfa.hands.registry import load_hand, load_spec
+from lerobot_opfa.hands.universal import UNIVERSAL_JOINT_NAMES
+from lerobot_opfa.policy.action_spaces import ACTION_SPACES, ActionSpace
 
 _ENCODERS: dict[str, weakref.WeakValueDictionary[int, OpfaEncodeJointsStep]] = {}
 """link id -> the live preprocessor steps that have processed a batch (their postprocessor partners read
@@ -55,12 +57,15 @@ class PointCloudBatchStep(ObservationProcessorStep):
 
 @dataclass
 class _HandSpace:
-    """What both joint steps share: the embodiments, their hands, the GaLR and the policy-space widths."""
+    """What both joint steps share: the embodiments, their hands, the GaLR and the action space (the
+    `action_spaces.Hands` a space converts with)."""
 
     action_space: str = "galr"
     embodiments: list[str] = field(default_factory=list)
     hand_refs: list[str] = field(default_factory=list)
     """Per embodiment: a built-in name or a spec path (what `load_hand` takes)."""
+    embodiment_joints: list[list[str]] = field(default_factory=list)
+    """Per embodiment, its universal joints (the config's; read from the specs for a step saved before)."""
     wrist_dim: int = 6
     galr_config: dict | None = None
     link: str = ""
@@ -68,18 +73,28 @@ class _HandSpace:
     """Runtime object: built from `galr_config` when loading, weights restored by `load_state_dict`."""
 
     def __post_init__(self):
-        if self.action_space == "galr" and self.galr is None:
+        if self.space.uses_galr and self.galr is None:
             if self.galr_config is None:
-                raise ValueError("action_space 'galr' needs a GaLR (galr_config is missing)")
-            from lerobot_opfa.galr.model import Galr
-
+                raise ValueError(f"action_space '{self.action_space}' needs a GaLR (galr_config is missing)")
             self.galr = Galr(self.galr_config).eval().requires_grad_(False)
+        if not self.embodiment_joints and not self.space.uses_galr:
+            self.embodiment_joints = [load_spec(ref).universal_names for ref in self.hand_refs]
         self._hands: dict[int, HandModel] = {}
+
+    @property
+    def space(self) -> ActionSpace:
+        return ACTION_SPACES[self.action_space]
+
+    @property
+    def latent_dim(self) -> int | None:
+        return None if self.galr is None else self.galr.config.latent_dim
+
+    @cached_property
+    def hand_mask(self) -> torch.Tensor:
+        return self.space.hand_mask(self.latent_dim, self.embodiment_joints)
 
     def model(self, index: int) -> HandModel:
         if index not in self._hands:
-            from lerobot_opfa.hands.registry import load_hand
-
             self._hands[index] = load_hand(self.hand_refs[index])
         return self._hands[index]
 
@@ -88,11 +103,18 @@ class _HandSpace:
             self.galr.to(device)
         return self.galr
 
+    def encode(self, index: int, q: torch.Tensor) -> torch.Tensor:
+        return encode_joints(self.galr_on(q.device), self.embodiments[index], q)
+
+    def decode(self, index: int, z: torch.Tensor) -> torch.Tensor:
+        return self.galr_on(z.device).decode(z, self.embodiments[index])
+
     def config_dict(self) -> dict[str, Any]:
         return {
             "action_space": self.action_space,
             "embodiments": list(self.embodiments),
             "hand_refs": list(self.hand_refs),
+            "embodiment_joints": [list(joints) for joints in self.embodiment_joints],
             "wrist_dim": self.wrist_dim,
             "galr_config": self.galr_config,
             "link": self.link,
@@ -143,8 +165,7 @@ class OpfaEncodeJointsStep(_HandSpace, ProcessorStep):
         action = new.get(TransitionKey.ACTION)
         hand = obs.pop(OBS_HAND, None)
         if OBS_EMBODIMENT in obs:
-            emb = obs[OBS_EMBODIMENT]
-            ids = emb.reshape(len(emb), -1)[:, -1].long().to(state.device)
+            ids = batch_embodiments(obs[OBS_EMBODIMENT]).to(state.device)
             convert = self._from_universal
         else:
             index = self._hand_index(hand) if hand is not None else self._native_index(state.shape[-1])
@@ -188,33 +209,14 @@ class OpfaEncodeJointsStep(_HandSpace, ProcessorStep):
             )
         if self.embodiments[index] == self.hand and self.native_joint_names:
             q = q[..., self._native_order]
-        if self.action_space == "galr":
-            z = _encode(self.galr_on(x.device), self.embodiments[index], q)
-            return torch.cat([wrist, z], dim=-1)
-        if self.action_space == "raw":
-            return torch.cat([wrist, q], dim=-1)
-        return torch.cat([wrist, hand.to_universal(q)], dim=-1)
+        return torch.cat([wrist, self.space.from_joints(self, index, q)], dim=-1)
 
     # --- merged layout: wrist + universal joints [+ cached z] ----------------------------------------
     def _from_universal(self, x: torch.Tensor, ids: torch.Tensor) -> torch.Tensor:
-        w, u = self.wrist_dim, self.wrist_dim + n_universal()
-        wrist, universal = x[..., :w], x[..., w:u]
-        if self.action_space == "galr":
-            d = self.galr.config.latent_dim
-            if self.use_cached_latents and x.shape[-1] == u + d:
-                return torch.cat([wrist, x[..., u:]], dim=-1)
-            z = x.new_zeros(*x.shape[:-1], d)
-            for index in ids.unique().tolist():
-                rows = ids == index
-                q = self.model(index).from_universal(universal[rows])
-                z[rows] = _encode(self.galr_on(x.device), self.embodiments[index], q)
-            return torch.cat([wrist, z], dim=-1)
-        if self.action_space == "raw":
-            return torch.cat([wrist, self.model(0).from_universal(universal)], dim=-1)
-        row_mask = self._universal_masks.to(x.device)[ids].view(
-            len(ids), *([1] * (x.dim() - 2)), n_universal()
-        )
-        return torch.cat([wrist, universal * row_mask], dim=-1)
+        w, u = self.wrist_dim, self.wrist_dim + len(UNIVERSAL_JOINT_NAMES)
+        if self.use_cached_latents and x.shape[-1] == u + self.latent_dim:
+            return torch.cat([x[..., :w], x[..., u:]], dim=-1)
+        return torch.cat([x[..., :w], self.space.from_universal(self, x[..., w:u], ids)], dim=-1)
 
     @cached_property
     def _native_order(self) -> list[int]:
@@ -223,14 +225,6 @@ class OpfaEncodeJointsStep(_HandSpace, ProcessorStep):
             self.native_joint_names.index(j)
             for j in self.model(self.embodiments.index(self.hand)).joint_names
         ]
-
-    @cached_property
-    def _universal_masks(self) -> torch.Tensor:
-        """(embodiments, universal joints): 1 where the embodiment has the joint (built once)."""
-        mask = torch.zeros(len(self.embodiments), n_universal())
-        for index in range(len(self.embodiments)):
-            mask[index, self.model(index).universal_index.cpu()] = 1.0
-        return mask
 
     def get_config(self) -> dict[str, Any]:
         return {
@@ -247,17 +241,11 @@ class OpfaEncodeJointsStep(_HandSpace, ProcessorStep):
         self.load_galr_state(state, "encoder.")
 
     def transform_features(self, features):
-        width = self.wrist_dim + self.policy_width()
+        width = self.wrist_dim + self.space.hand_width(self.latent_dim, self.embodiment_joints)
         for kind, key in ((PipelineFeatureType.OBSERVATION, OBS_STATE), (PipelineFeatureType.ACTION, ACTION)):
             if key in features.get(kind, {}):
                 features[kind][key] = PolicyFeature(type=features[kind][key].type, shape=(width,))
         return features
-
-    def policy_width(self) -> int:
-        """Width after the wrist entries in the policy space."""
-        if self.action_space == "galr":
-            return self.galr.config.latent_dim
-        return self.model(0).dof if self.action_space == "raw" else n_universal()
 
 
 @ProcessorStepRegistry.register("opfa_decode_joints")
@@ -272,15 +260,8 @@ class OpfaDecodeJointsStep(_HandSpace, ProcessorStep):
         new = transition.copy()
         action = new[TransitionKey.ACTION]
         index = self.single_id(embodiment_ids(self.link, len(action), self.embodiments, self.hand))
-        hand = self.model(index)
         wrist, rest = action[..., : self.wrist_dim], action[..., self.wrist_dim :]
-        if self.action_space == "galr":
-            z = rest.reshape(-1, rest.shape[-1])
-            q = self.galr_on(action.device).decode(z, self.embodiments[index]).reshape(*rest.shape[:-1], -1)
-        elif self.action_space == "raw":
-            q = rest
-        else:
-            q = hand.from_universal(rest)
+        q = self.space.to_joints(self, index, rest)
         new[TransitionKey.ACTION] = torch.cat([wrist, q.to(wrist.dtype)], dim=-1)
         return new
 
@@ -295,18 +276,6 @@ class OpfaDecodeJointsStep(_HandSpace, ProcessorStep):
 
     def transform_features(self, features):
         return features
-
-
-def _encode(galr: Galr, hand: str, q: torch.Tensor) -> torch.Tensor:
-    from lerobot_opfa.galr.frozen import encode_joints
-
-    return encode_joints(galr, hand, q)
-
-
-def n_universal() -> int:
-    from lerobot_opfa.hands.universal import UNIVERSAL_JOINT_NAMES
-
-    return len(UNIVERSAL_JOINT_NAMES)
 
 
 def embodiment_ids(link: str, batch: int, embodiments: list[str], hand: str | None = None) -> torch.Tensor:

@@ -16,39 +16,24 @@ from lerobot.policies.utils import populate_queues
 from lerobot.utils.constants import ACTION, OBS_STATE
 from torch import Tensor, nn
 
-from lerobot_opfa.features import OBS_EMBODIMENT, OBS_POINTCLOUD
+from lerobot_opfa.features import OBS_EMBODIMENT, OBS_POINTCLOUD, batch_embodiments
 from lerobot_opfa.galr.pointnet import PointNetEncoder
 from lerobot_opfa.hands.registry import load_spec
-from lerobot_opfa.hands.universal import UNIVERSAL_INDEX, UNIVERSAL_JOINT_NAMES
 from lerobot_opfa.policy.configuration_opfa import OpfaConfig
 from lerobot_opfa.policy.diffusion import ConditionalUnet1d, Ddim
+from lerobot_opfa.policy.processor_opfa import resolve_config
 
 
-def policy_width(config: OpfaConfig) -> int:
-    """Width of the policy's state and action vectors: wrist + z | the hand's joints | universal joints,
-    read from the config alone."""
-    if config.action_space == "galr":
-        rest = config.latent_dim
-    elif config.action_space == "raw":
-        rest = len(config.embodiment_joints[0])
-    else:
-        rest = len(UNIVERSAL_JOINT_NAMES)
-    return len(config.wrist_names) + rest
-
-
-def loss_weights(config: OpfaConfig, width: int) -> Tensor:
+def loss_weights(config: OpfaConfig) -> Tensor:
     """(embodiments, width) weights of the action entries in the loss: the wrist and the hand each carry
-    half, spread evenly over their entries (for `per_embodiment`, over the joints the hand has).
+    half, spread evenly over the entries that mean something for the embodiment (`ActionSpace.hand_mask`).
 
     A plain mean over entries lets the hand part outweigh the wrist by its width: 64 z entries against 6
     wrist entries under `galr`, which then fits the joints and leaves the wrist at the demos' average
-    motion (denoising error of the wrist 10x that of `raw` after the same training)."""
+    motion (denoising error of the wrist 10x that of `raw` after the same training). For `per_embodiment`,
+    a hand's share goes to the universal joints it has."""
     n_wrist = len(config.wrist_names)
-    present = torch.ones(len(config.embodiments), width - n_wrist)
-    if config.action_space == "per_embodiment":  # only the universal joints each hand has
-        present = torch.zeros_like(present)
-        for e, joints in enumerate(config.embodiment_joints):
-            present[e, [UNIVERSAL_INDEX[u] for u in joints]] = 1
+    present = config.space.hand_mask(config.latent_dim, config.embodiment_joints)
     hand_share = 0.5 if n_wrist else 1.0
     wrist = torch.full((len(config.embodiments), n_wrist), (1 - hand_share) / max(n_wrist, 1))
     return torch.cat([wrist, hand_share * present / present.sum(-1, keepdim=True)], dim=-1)
@@ -63,15 +48,13 @@ class OpfaPolicy(PreTrainedPolicy):
         config.validate_features()
         meta = dataset_meta if dataset_meta is not None else getattr(config, "_runtime_dataset_meta", None)
         if meta is not None:
-            from lerobot_opfa.policy.processor_opfa import resolve_config
-
             resolve_config(config, meta)
         if config.embodiments and not config.embodiment_joints:  # saved before the field existed: built-ins
             config.embodiment_joints = [load_spec(hand).universal_names for hand in config.embodiments]
-        if not config.embodiment_joints or (config.action_space == "galr" and config.latent_dim is None):
+        if not config.embodiment_joints or (config.space.uses_galr and config.latent_dim is None):
             raise ValueError("an opfa policy is built from a dataset (dataset_meta) or a trained checkpoint")
         self.config = config
-        width = policy_width(config)
+        width = config.policy_width
         self.point_encoder = PointNetEncoder(
             config.pointcloud_feature_dim, config.pointcloud_widths, in_dim=3
         )
@@ -80,7 +63,6 @@ class OpfaPolicy(PreTrainedPolicy):
         # (the wrist's last centimetres above a button) would barely reach the network.
         hidden, out = config.state_mlp_dims
         self.state_encoder = nn.Sequential(nn.Linear(width, hidden), nn.ReLU(), nn.Linear(hidden, out))
-        n_heads = len(config.embodiments) if config.action_space == "per_embodiment" else 1
         self.unet = ConditionalUnet1d(
             action_dim=width,
             cond_dim=config.n_obs_steps * (config.pointcloud_feature_dim + config.state_mlp_dims[-1]),
@@ -89,7 +71,7 @@ class OpfaPolicy(PreTrainedPolicy):
             groups=config.n_groups,
             step_embed_dim=config.diffusion_step_embed_dim,
             use_scale=config.use_film_scale_modulation,
-            n_heads=n_heads,
+            n_heads=config.space.n_heads(len(config.embodiments)),
             cpu_float16_weights=config.cpu_float16_weights,
         )
         self.ddim = Ddim(
@@ -101,7 +83,7 @@ class OpfaPolicy(PreTrainedPolicy):
             config.prediction_type,
             config.clip_sample_range if config.clip_sample else None,
         )
-        self.register_buffer("loss_weights", loss_weights(config, width), persistent=False)
+        self.register_buffer("loss_weights", loss_weights(config), persistent=False)
         self.reset()
 
     def get_optim_params(self) -> dict:
@@ -122,11 +104,6 @@ class OpfaPolicy(PreTrainedPolicy):
         features = self.point_encoder(cloud.reshape(b * n_obs, -1, 3)).view(b, n_obs, -1)
         return torch.cat([features, self.state_encoder(batch[OBS_STATE])], dim=-1).flatten(1)
 
-    @staticmethod
-    def _embodiment(batch: dict[str, Tensor]) -> Tensor:
-        ids = batch[OBS_EMBODIMENT]
-        return ids.reshape(len(ids), -1)[:, -1].long()
-
     # --- training ----------------------------------------------------------------------------------
     def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
         """Denoising loss of the action chunk (prediction target: the clean sample by default)."""
@@ -134,7 +111,7 @@ class OpfaPolicy(PreTrainedPolicy):
         x0 = batch[ACTION]
         noise = torch.randn_like(x0)
         t = torch.randint(0, self.config.num_train_timesteps, (len(x0),), device=x0.device)
-        head = self._embodiment(batch)
+        head = batch_embodiments(batch[OBS_EMBODIMENT])
         pred = self.unet(self.ddim.add_noise(x0, noise, t), t, cond, head)
         error = F.mse_loss(pred, self.ddim.target(x0, noise), reduction="none")
         loss = (error * self.loss_weights[head].unsqueeze(1)).sum(-1).mean()
@@ -150,7 +127,7 @@ class OpfaPolicy(PreTrainedPolicy):
                 OBS_EMBODIMENT: self._queues[OBS_EMBODIMENT][-1]
             }
         cond = self.encode_observation(batch)
-        head = self._embodiment(batch)
+        head = batch_embodiments(batch[OBS_EMBODIMENT])
         b = len(cond)
         shape = (b, self.config.horizon, self.unet.action_dim)
         if noise is None:

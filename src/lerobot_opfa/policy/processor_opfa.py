@@ -30,7 +30,7 @@ from lerobot.processor.factory import make_policy_processor_pipelines
 from lerobot.utils.constants import ACTION, OBS_STATE
 
 from lerobot_opfa.datasets.io import read_columns
-from lerobot_opfa.datasets.layout import DatasetLayout, latent_names, opfa_record, read_layout
+from lerobot_opfa.datasets.layout import DatasetLayout, opfa_record, read_layout
 from lerobot_opfa.features import OBS_EMBODIMENT
 from lerobot_opfa.galr import checkpoints
 from lerobot_opfa.galr.frozen import galr_fingerprint, known_hand_refs, load_galr
@@ -59,7 +59,7 @@ def policy_galr(config: OpfaConfig, dataset_root: Path | str | None = None) -> G
     """The frozen GaLR of a `galr` policy. Without `--policy.galr_path` it is the one the dataset's cached
     latents came from, else the packaged default; the choice is written into the config (and so saved with
     the policy). A given checkpoint that did not make the dataset's latents is an error."""
-    if config.action_space != "galr":
+    if not config.space.uses_galr:
         return None
     record = opfa_record(dataset_root)
     if not config.galr_path:
@@ -115,11 +115,7 @@ def resolve_config(config: OpfaConfig, dataset_meta: Any) -> DatasetLayout:
                 f"{config.galr_path} --hands +SPEC` (minutes), or use action_space raw or per_embodiment"
             )
         config.latent_dim = galr.config.latent_dim
-    if config.action_space == "raw" and len(layout.embodiments) != 1:
-        raise ValueError(
-            f"action_space 'raw' trains one embodiment; the dataset holds {layout.embodiments}. "
-            "Use 'per_embodiment' (naive co-training) or 'galr'"
-        )
+    config.space.check_embodiments(layout.embodiments)
     config.embodiments, config.wrist_names = list(layout.embodiments), list(layout.wrist_names)
     config.embodiment_joints = [load_spec(ref).universal_names for ref in layout.hand_refs]
     return layout
@@ -132,24 +128,13 @@ def _raw_noise(wrist_dim: int, universal_names: list[str]) -> torch.Tensor:
     return torch.tensor([WRIST_NOISE] * wrist_dim + noise)
 
 
-def policy_space_names(config: OpfaConfig, encoder: OpfaEncodeJointsStep) -> list[str]:
-    """Names of the policy's state/action entries: the wrist's, then z's, the hand's or universal joints."""
-    if config.action_space == "galr":
-        rest = latent_names(config.latent_dim)
-    elif config.action_space == "raw":
-        rest = encoder.model(0).joint_names
-    else:
-        rest = list(UNIVERSAL_JOINT_NAMES)
-    return [*config.wrist_names, *rest]
-
-
 def _policy_space_tables(
     config: OpfaConfig, layout: DatasetLayout, encoder: OpfaEncodeJointsStep, root: Path
 ) -> dict[str, torch.Tensor]:
     columns = [OBS_STATE, ACTION] + ([OBS_EMBODIMENT] if layout.kind == "merged" else [])
     frames = {k: torch.tensor(v, dtype=torch.float32) for k, v in read_columns(root, columns).items()}
     n = len(frames[OBS_STATE])
-    subsample = config.action_space == "galr" and not encoder.use_cached_latents
+    subsample = config.space.uses_galr and not encoder.use_cached_latents
     if subsample and n > STATS_MAX_ENCODED_FRAMES:
         keep = torch.randperm(n, generator=torch.Generator().manual_seed(0))[:STATS_MAX_ENCODED_FRAMES]
         frames = {k: v[keep] for k, v in frames.items()}
@@ -164,7 +149,7 @@ def _policy_space_tables(
     wrist = len(config.wrist_names)
     pooled = torch.zeros(out[TransitionKey.ACTION].shape[-1], dtype=torch.bool)
     pooled[:wrist] = config.wrist_normalization == "shared"
-    pooled[wrist:] = config.action_space == "galr"
+    pooled[wrist:] = config.space.pools_hand_statistics
     if layout.kind == "merged":  # the joints only (cached z would not move with them)
         raw = frames[OBS_STATE][:, : wrist + len(UNIVERSAL_JOINT_NAMES)]
         universal = list(UNIVERSAL_JOINT_NAMES)
@@ -210,6 +195,7 @@ def make_opfa_pre_post_processors(
         action_space=config.action_space,
         embodiments=list(config.embodiments),
         hand_refs=list(layout.hand_refs),
+        embodiment_joints=[list(joints) for joints in config.embodiment_joints],
         wrist_dim=len(config.wrist_names),
         galr_config=dataclasses.asdict(galr.config) if galr is not None else None,
         link=uuid.uuid4().hex,
@@ -232,7 +218,7 @@ def make_opfa_pre_post_processors(
             encoder,
             OpfaNormalizeStep(
                 tables=tables,
-                names=policy_space_names(config, encoder),
+                names=[*config.wrist_names, *config.space.hand_names(encoder)],
                 embodiments=list(config.embodiments),
             ),
             NormalizerProcessorStep(features={}, norm_map=config.normalization_mapping),
