@@ -40,7 +40,6 @@ from lerobot_opfa.policy.joint_steps import OpfaEncodeJointsStep
 from lerobot_opfa.policy.modeling_opfa import OpfaPolicy
 from lerobot_opfa.policy.normalization import OpfaNormalizeStep, OpfaUnnormalizeStep
 from lerobot_opfa.policy.processor_opfa import make_opfa_pre_post_processors
-from lerobot_opfa.policy.stock_io import convert_policy_io
 
 HANDS = ["umi", "inspire", "leap"]  # 1, 6 and 16 DoF
 GALR = dict(latent_dim=8, encoder="pointnet", n_points=64, n_level1=32, n_superpoints=24, widths=(16, 32, 32),
@@ -596,7 +595,8 @@ def test_stock_diffusion_in_galr_space_then_joint_io(data, tmp_path):
     policy.eval()
     for obj in (policy, pre, post):
         obj.save_pretrained(tmp_path / "stock")
-    convert_policy_io(tmp_path / "stock", str(data / "galr"), tmp_path / "joint_io")
+    convert = ["policy", "convert-io", "--policy", str(tmp_path / "stock"), "--galr", str(data / "galr")]
+    assert cli.main([*convert, "--output", str(tmp_path / "joint_io")]) == 0
     loaded = DiffusionPolicy.from_pretrained(tmp_path / "joint_io")
     pre2, post2 = make_pre_post_processors(loaded.config, pretrained_path=str(tmp_path / "joint_io"))
     cloud = dataset[0][OBS_POINTCLOUD][-1]

@@ -12,6 +12,7 @@ from lerobot_opfa.envs import commands as sim_commands
 from lerobot_opfa.experiments import commands as experiment_commands
 from lerobot_opfa.galr import commands as galr_commands
 from lerobot_opfa.hands import commands as hands_commands
+from lerobot_opfa.policy import commands as policy_commands
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -21,6 +22,7 @@ def build_parser() -> argparse.ArgumentParser:
     sim_commands.add_commands(subparsers)
     dataset_commands.add_commands(subparsers)
     galr_commands.add_commands(subparsers)
+    policy_commands.add_commands(subparsers)
     experiment_commands.add_commands(subparsers)
     train.add_command(subparsers)
     demo.add_command(subparsers)

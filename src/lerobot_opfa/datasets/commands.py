@@ -1,4 +1,4 @@
-"""`lerobot-opfa dataset ...` (merge, latent, synthetic) and `lerobot-opfa convert-policy-io`."""
+"""`lerobot-opfa dataset ...`: merge, latent, synthetic."""
 
 from __future__ import annotations
 
@@ -35,17 +35,6 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     synthetic.add_argument("--seed", type=int, default=0)
     synthetic.set_defaults(func=_synthetic)
 
-    convert = subparsers.add_parser(
-        "convert-policy-io", help="give a stock policy trained on a latent dataset a joint-space interface"
-    )
-    convert.add_argument("--policy", type=Path, required=True, help="checkpoint folder (pretrained_model)")
-    convert.add_argument(
-        "--galr", required=True, help="the GaLR the latent dataset was made with (name, folder, repo)"
-    )
-    convert.add_argument("--output", type=Path, required=True)
-    convert.add_argument("--hand", help="hand of observations without an embodiment id (default: inferred)")
-    convert.set_defaults(func=_convert)
-
 
 def _merge(args: argparse.Namespace) -> None:
     from lerobot_opfa.datasets.merge import merge_datasets
@@ -65,13 +54,6 @@ def _synthetic(args: argparse.Namespace) -> None:
 
     write_synthetic_dataset(args.output, args.hand, args.episodes, args.frames, args.n_points, seed=args.seed)
     print(f"wrote {_summary(args.output)}")
-
-
-def _convert(args: argparse.Namespace) -> None:
-    from lerobot_opfa.policy.stock_io import convert_policy_io
-
-    convert_policy_io(args.policy, args.galr, args.output, args.hand)
-    print(f"wrote {args.output}: the policy of {args.policy} with a joint-space interface")
 
 
 def _summary(root: Path) -> str:

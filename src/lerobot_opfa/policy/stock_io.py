@@ -1,4 +1,4 @@
-"""`lerobot-opfa convert-policy-io`: give a stock LeRobot policy trained in GaLR space (on a
+"""`lerobot-opfa policy convert-io`: give a stock LeRobot policy trained in GaLR space (on a
 `dataset latent` dataset) a joint-space interface, so `lerobot-eval` can run it on any hand the GaLR knows.
 
 The policy's own processors stay as they are; `opfa_encode_joints` goes in front of its normaliser
