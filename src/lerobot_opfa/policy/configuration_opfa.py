@@ -73,9 +73,12 @@ class OpfaConfig(PreTrainedConfig):
     n_groups: int = 8
     diffusion_step_embed_dim: int = 128
     use_film_scale_modulation: bool = True
+    cpu_fast_sampling: bool = True
+    """Sample through `fast_sampling` (time-major convolutions in one frozen TorchScript graph) outside
+    training: about 3x faster per chunk at batch 1 on a CPU (benchmarks/bench_policy.py)."""
     cpu_float16_weights: bool = True
-    """Sampling on a CPU multiplies by float16 copies of the U-Net's convolution weights (float32 sums):
-    about twice as fast at batch 1, actions within 1e-3 of float32 in normalised units
+    """With `cpu_fast_sampling` on a CPU, multiply by float16 copies of the U-Net's convolution weights
+    (float32 sums): about twice as fast at batch 1, actions within 1e-3 of float32 in normalised units
     (benchmarks/bench_policy.py). Training and CUDA always use float32."""
 
     # DDIM

@@ -21,6 +21,7 @@ from lerobot_opfa.galr.pointnet import PointNetEncoder
 from lerobot_opfa.hands.registry import load_spec
 from lerobot_opfa.policy.configuration_opfa import OpfaConfig
 from lerobot_opfa.policy.diffusion import ConditionalUnet1d, Ddim
+from lerobot_opfa.policy.fast_sampling import FastSampler
 from lerobot_opfa.policy.processor_opfa import resolve_config
 
 
@@ -72,7 +73,9 @@ class OpfaPolicy(PreTrainedPolicy):
             step_embed_dim=config.diffusion_step_embed_dim,
             use_scale=config.use_film_scale_modulation,
             n_heads=config.space.n_heads(len(config.embodiments)),
-            cpu_float16_weights=config.cpu_float16_weights,
+        )
+        self.fast_sampler = (
+            FastSampler(self.unet, config.cpu_float16_weights) if config.cpu_fast_sampling else None
         )
         self.ddim = Ddim(
             config.num_train_timesteps,
@@ -138,7 +141,12 @@ class OpfaPolicy(PreTrainedPolicy):
 
     def sample(self, cond: Tensor, head: Tensor | None, noise: Tensor) -> Tensor:
         """The DDIM reverse process from `noise` (B, horizon, A) for global conditions cond (B, C)."""
-        return self.ddim.sample(self.unet.denoiser(self.ddim.timesteps, cond, head), noise)
+        steps = self.ddim.timesteps
+        if self.fast_sampler is not None and not (self.training or torch.is_grad_enabled()):
+            return self.ddim.sample(self.fast_sampler.denoiser(steps, cond, head), noise)
+        return self.ddim.sample(
+            lambda x, i: self.unet(x, cond.new_full((len(x),), steps[i]), cond, head), noise
+        )
 
     @torch.inference_mode()
     def select_action(self, batch: dict[str, Tensor], noise: Tensor | None = None) -> Tensor:
