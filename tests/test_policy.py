@@ -10,6 +10,7 @@ import shutil
 import subprocess
 import sys
 from pathlib import Path
+from unittest.mock import patch
 
 import pytest
 import torch
@@ -29,10 +30,12 @@ from lerobot_opfa.datasets import merge as merge_module
 from lerobot_opfa.datasets.latent import latent_dataset
 from lerobot_opfa.datasets.layout import JointNameError, read_layout
 from lerobot_opfa.datasets.merge import merge_datasets
+from lerobot_opfa.datasets.statistics import STATS_FILE
 from lerobot_opfa.datasets.synthetic import write_synthetic_dataset
 from lerobot_opfa.features import OBS_EMBODIMENT, OBS_POINTCLOUD
 from lerobot_opfa.galr.model import Galr, GalrConfig, hand_record
 from lerobot_opfa.hands import load_hand
+from lerobot_opfa.policy import processor_opfa as processor_module
 from lerobot_opfa.policy.action_spaces import ACTION_SPACES
 from lerobot_opfa.policy.configuration_opfa import OpfaConfig
 from lerobot_opfa.policy.joint_steps import OpfaEncodeJointsStep
@@ -342,6 +345,28 @@ PITCH, ROLL = 4, 5
 def _steps(pre, post):
     normalize = next(s for s in pre.steps if isinstance(s, OpfaNormalizeStep))
     return normalize, next(s for s in post.steps if isinstance(s, OpfaUnnormalizeStep))
+
+
+@pytest.mark.parametrize(
+    ("space", "mode", "wrist"),
+    [(s, m, w) for s, _, m, w in NORMALIZATION_CASES if _ == "merged"],
+)
+def test_normalisation_fitted_from_the_merge_statistics_equals_fitting_it_on_the_frames(
+    data, tmp_path, space, mode, wrist
+):
+    """`dataset merge` writes per-embodiment statistics; fitted from them, without the frames, the tables
+    are those fitted on the frames (a merged dataset without the file)."""
+    shutil.copytree(data / "galr", tmp_path / "galr")
+    shutil.copytree(data / "merged", tmp_path / "merged")
+    (tmp_path / "merged" / STATS_FILE).unlink()
+    overrides = dict(action_space=space, normalization=mode, wrist_normalization=wrist)
+    with patch.object(processor_module, "read_columns", side_effect=AssertionError("read the frames")):
+        _, pre, post, _ = make_policy(data, "merged", **overrides)
+    _, pre_frames, post_frames, _ = make_policy(tmp_path, "merged", **overrides)
+    for ours, theirs in zip(_steps(pre, post), _steps(pre_frames, post_frames), strict=True):
+        assert ours.tables.keys() == theirs.tables.keys()
+        for key, table in ours.tables.items():
+            assert torch.allclose(table, theirs.tables[key], rtol=1e-5, atol=1e-7), key
 
 
 @pytest.mark.parametrize(("space", "dataset", "mode", "wrist"), NORMALIZATION_CASES)

@@ -23,6 +23,7 @@ from tqdm import tqdm
 
 from lerobot_opfa.datasets.io import atomic_directory, read_columns
 from lerobot_opfa.datasets.layout import OPFA_META_FILE, DatasetLayout, hand_entry, latent_names, read_layout
+from lerobot_opfa.datasets.statistics import column_statistics, noise_floor, raw_noise, write_statistics
 from lerobot_opfa.features import OBS_EMBODIMENT
 from lerobot_opfa.hands.registry import load_hand, load_spec
 from lerobot_opfa.hands.universal import UNIVERSAL_JOINT_NAMES
@@ -121,6 +122,7 @@ def merge_datasets(
             for source in opened:
                 _append(merged, source, embodiments, galr, len(wrist), list(extra), progress)
         merged.finalize()
+        write_statistics(partial, _statistics(partial, embodiments, galr, len(wrist)))
         refs = {i.layout.embodiments[0]: i.layout.hand_refs[0] for i in opened}
         user_hands = {name: hand_entry(load_spec(ref)) for name, ref in refs.items() if ref != name}
         meta = {
@@ -137,6 +139,41 @@ def merge_datasets(
         (partial / OPFA_META_FILE).write_text(json.dumps(meta, indent=2))
     logger.info("merged %d frames of %s into %s", total, embodiments, output)
     return Path(output)
+
+
+def _statistics(root: Path, embodiments: list[str], galr, n_wrist: int) -> dict[str, torch.Tensor]:
+    """Per-embodiment statistics of the merged state and action, and the noise floor of the cached z: what
+    the opfa processors fit their normalisation to (`statistics.STATS_FILE`)."""
+    frames = read_columns(root, [OBS_STATE, ACTION, OBS_EMBODIMENT])
+    ids = torch.tensor(frames[OBS_EMBODIMENT], dtype=torch.long).view(-1)
+    out = {}
+    for key in (OBS_STATE, ACTION):
+        stats = column_statistics(torch.tensor(frames[key], dtype=torch.float32), ids, len(embodiments))
+        out |= {f"{key}.{name}": value for name, value in stats.items()}
+    if galr is not None:
+        state = torch.tensor(frames[OBS_STATE], dtype=torch.float32)
+        out["latent_noise_floor"] = _latent_noise_floor(galr, embodiments, state, ids, n_wrist)
+    return out
+
+
+def _latent_noise_floor(galr, embodiments: list[str], state: torch.Tensor, ids: torch.Tensor, n_wrist: int):
+    """(d,): what joint noise moves each entry of z by, over all hands' frames (`statistics.noise_floor`)."""
+    from lerobot_opfa.galr.frozen import encode_joints
+
+    joints = n_wrist + len(UNIVERSAL_JOINT_NAMES)
+    hands = [galr.hand(name)[0] for name in embodiments]
+
+    def encode(rows: torch.Tensor, row_ids: torch.Tensor) -> torch.Tensor:
+        z = rows.new_zeros(len(rows), galr.config.latent_dim)
+        for e in row_ids.unique().tolist():
+            mine = row_ids == e
+            z[mine] = encode_joints(galr, embodiments[e], hands[e].from_universal(rows[mine, n_wrist:]))
+        return z
+
+    noise = raw_noise(n_wrist, list(UNIVERSAL_JOINT_NAMES))
+    pooled = torch.ones(galr.config.latent_dim, dtype=torch.bool)
+    floor = noise_floor(encode, state[:, :joints], state[:, joints:], ids, noise, len(embodiments), pooled)
+    return floor[0]
 
 
 def _append(merged, source: _Input, embodiments, galr, n_wrist: int, extra: list[str], progress) -> None:

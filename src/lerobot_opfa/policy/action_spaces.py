@@ -66,6 +66,11 @@ class ActionSpace:
     def n_heads(self, n_embodiments: int) -> int:
         return 1
 
+    def merged_columns(self, n_wrist: int, latent_dim: int | None) -> list[int] | None:
+        """The columns of a merged dataset's state or action (wrist, universal joints, then the cached z
+        when `latent_dim` is given) that are this space's entries as they are, or None if none are."""
+        return None
+
     def from_joints(self, hands: Hands, index: int, q: Tensor) -> Tensor:
         """Hand `index`'s joints (..., dof) in spec order -> (..., hand width)."""
         raise NotImplementedError
@@ -91,6 +96,12 @@ class GalrSpace(ActionSpace):
 
     def hand_names(self, hands):
         return latent_names(hands.latent_dim)
+
+    def merged_columns(self, n_wrist, latent_dim):
+        if latent_dim is None:
+            return None
+        start = n_wrist + len(UNIVERSAL_JOINT_NAMES)
+        return [*range(n_wrist), *range(start, start + latent_dim)]
 
     def from_joints(self, hands, index, q):
         return hands.encode(index, q)
@@ -147,6 +158,9 @@ class PerEmbodimentSpace(ActionSpace):
 
     def n_heads(self, n_embodiments):
         return n_embodiments
+
+    def merged_columns(self, n_wrist, latent_dim):
+        return list(range(n_wrist + len(UNIVERSAL_JOINT_NAMES)))
 
     def from_joints(self, hands, index, q):
         return hands.model(index).to_universal(q)

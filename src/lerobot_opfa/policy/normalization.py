@@ -7,8 +7,8 @@ ones. Each feature has tables of shape (E, D), row e for embodiment e: `shift`, 
 x_norm = (x - shift[e]) / scale[e], and the training range `low`, `high`.
 
 Two rules keep a rollout from running away:
-- a scale is never below the entry's noise floor (what physical noise of `WRIST_NOISE`, `REVOLUTE_NOISE`,
-  `PRISMATIC_NOISE` moves it by): an entry that is near-constant in the demos (a wrist axis holding still)
+- a scale is never below the entry's noise floor (what the physical noise of `datasets.statistics` moves it
+  by): an entry that is near-constant in the demos (a wrist axis holding still)
   is not amplified into a huge input when the robot jitters;
 - actions come out clamped to their training range, so an entry that is constant in the demos comes out
   as that constant, whatever the denoiser outputs for it.
@@ -19,7 +19,6 @@ outside the training range (the policy has never seen them).
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -28,82 +27,27 @@ from lerobot.configs import NormalizationMode
 from lerobot.processor import ProcessorStep, ProcessorStepRegistry, TransitionKey
 from lerobot.utils.constants import ACTION, OBS_STATE
 
+from lerobot_opfa.datasets.statistics import pool
 from lerobot_opfa.features import OBS_EMBODIMENT
 from lerobot_opfa.policy.joint_steps import embodiment_ids
 
 logger = logging.getLogger(__name__)
 
-WRIST_NOISE = 0.01
-"""Noise of a wrist entry in SI units: 1 cm of position, 0.57 deg of rotation."""
-REVOLUTE_NOISE = 0.01
-"""Noise of a revolute hand joint (rad): 0.57 deg."""
-PRISMATIC_NOISE = 0.001
-"""Noise of a prismatic hand joint (m): 1 mm of a gripper jaw's few centimetres."""
 MIN_SCALE = 1e-6
 """Below this scale an entry never moves, not even by noise (a universal joint the hand lacks): scale 1."""
-NOISE_SAMPLES = 512
-"""Frames the noise floor of the policy space is estimated on."""
 GUARD_WIDTHS = 10.0
 """A state entry this many range-widths outside its training range gets a warning."""
 
 
-def noise_floor(
-    encode: Callable[[torch.Tensor, torch.Tensor], torch.Tensor],
-    rows: torch.Tensor,
-    encoded: torch.Tensor,
-    ids: torch.Tensor,
-    raw_noise: torch.Tensor,
-    n_embodiments: int,
-    pooled: torch.Tensor,
-) -> torch.Tensor:
-    """(E, D): root-mean-square change of each policy-space entry when every raw entry of `rows` (F, R)
-    moves by its physical noise `raw_noise` (R,) with a random sign. `encode(rows, ids)` maps raw rows to
-    the policy space (so the floor of z is what joint noise does to the GaLR latent); `encoded` (F, D) is
-    `rows` already mapped, so only the noisy rows go through the GaLR."""
-    generator = torch.Generator().manual_seed(0)
-    keep = torch.randperm(len(rows), generator=generator)[:NOISE_SAMPLES]
-    rows, ids = rows[keep], ids[keep]
-    signs = torch.randint(0, 2, rows.shape, generator=generator).to(rows) * 2 - 1
-    delta = encode(rows + signs * raw_noise, ids) - encoded[keep]
-    return _per_embodiment(delta, ids, n_embodiments, pooled, lambda d: d.pow(2).mean(0).sqrt(), 0.0)
-
-
-def _per_embodiment(
-    values: torch.Tensor,
-    ids: torch.Tensor,
-    n_embodiments: int,
-    pooled: torch.Tensor,
-    reduce: Callable[[torch.Tensor], torch.Tensor],
-    empty: float,
-) -> torch.Tensor:
-    """(E, D) table of `reduce` over each embodiment's rows; `pooled` entries over all rows; `empty`
-    for an embodiment without rows."""
-    table = torch.full((n_embodiments, values.shape[-1]), empty, dtype=values.dtype)
-    everyone = reduce(values)
-    for e in range(n_embodiments):
-        rows = values[ids == e]
-        if len(rows):
-            table[e] = reduce(rows)
-        table[e, pooled] = everyone[pooled]
-    return table
-
-
 def affine_tables(
-    values: torch.Tensor,
-    ids: torch.Tensor,
-    n_embodiments: int,
-    mode: NormalizationMode,
-    pooled: torch.Tensor,
-    floor: torch.Tensor,
+    stats: dict[str, torch.Tensor], mode: NormalizationMode, pooled: torch.Tensor, floor: torch.Tensor
 ) -> dict[str, torch.Tensor]:
-    """`shift`, `scale`, `low`, `high`, each (E, D), from policy-space rows `values` (F, D) with embodiment
-    `ids` (F,) and noise floors `floor` (E, D). Entries where `pooled` (D,) is True use statistics over
-    all rows (the same in every row of the table)."""
+    """`shift`, `scale`, `low`, `high`, each (E, D), from policy-space statistics `stats`
+    (`statistics.column_statistics`) and noise floors `floor` (E, D). Entries where `pooled` (D,) is True
+    use statistics over all rows (the same in every row of the table)."""
     if mode not in (NormalizationMode.MIN_MAX, NormalizationMode.MEAN_STD, NormalizationMode.IDENTITY):
         raise ValueError(f"opfa normalises with MIN_MAX, MEAN_STD or IDENTITY, not {mode}")
-    table = dict(n_embodiments=n_embodiments, pooled=pooled)
-    low = _per_embodiment(values, ids, **table, reduce=lambda r: r.min(0).values, empty=-torch.inf)
-    high = _per_embodiment(values, ids, **table, reduce=lambda r: r.max(0).values, empty=torch.inf)
+    low, high = pool(stats, "min", pooled), pool(stats, "max", pooled)
     if mode is NormalizationMode.IDENTITY:
         shift, scale = torch.zeros_like(low), torch.ones_like(low)
     elif mode is NormalizationMode.MIN_MAX:
@@ -111,9 +55,7 @@ def affine_tables(
         shift = torch.where(known, (high + low) / 2, 0.0)
         scale = torch.where(known, (high - low) / 2, 1.0).maximum(floor)
     else:
-        shift = _per_embodiment(values, ids, **table, reduce=lambda r: r.mean(0), empty=0.0)
-        spread = _per_embodiment(values, ids, **table, reduce=lambda r: r.std(0, unbiased=False), empty=1.0)
-        scale = spread.maximum(floor)
+        shift, scale = pool(stats, "mean", pooled), pool(stats, "std", pooled).maximum(floor)
     scale[scale < MIN_SCALE] = 1.0
     return {"shift": shift, "scale": scale, "low": low, "high": high}
 

@@ -31,23 +31,23 @@ from lerobot.utils.constants import ACTION, OBS_STATE
 
 from lerobot_opfa.datasets.io import read_columns
 from lerobot_opfa.datasets.layout import DatasetLayout, opfa_record, read_layout
+from lerobot_opfa.datasets.statistics import (
+    column_statistics,
+    noise_floor,
+    raw_noise,
+    read_statistics,
+    statistics_of,
+)
 from lerobot_opfa.features import OBS_EMBODIMENT
 from lerobot_opfa.galr import checkpoints
 from lerobot_opfa.galr.frozen import galr_fingerprint, known_hand_refs, load_galr
 from lerobot_opfa.galr.model import Galr
 from lerobot_opfa.hands.registry import load_spec
-from lerobot_opfa.hands.universal import UNIVERSAL_INDEX, UNIVERSAL_JOINT_NAMES, UNIVERSAL_JOINTS
+from lerobot_opfa.hands.universal import UNIVERSAL_JOINT_NAMES
+from lerobot_opfa.policy.action_spaces import universal_mask
 from lerobot_opfa.policy.configuration_opfa import OpfaConfig
 from lerobot_opfa.policy.joint_steps import OpfaDecodeJointsStep, OpfaEncodeJointsStep, PointCloudBatchStep
-from lerobot_opfa.policy.normalization import (
-    PRISMATIC_NOISE,
-    REVOLUTE_NOISE,
-    WRIST_NOISE,
-    OpfaNormalizeStep,
-    OpfaUnnormalizeStep,
-    affine_tables,
-    noise_floor,
-)
+from lerobot_opfa.policy.normalization import OpfaNormalizeStep, OpfaUnnormalizeStep, affine_tables
 
 logger = logging.getLogger(__name__)
 
@@ -121,16 +121,57 @@ def resolve_config(config: OpfaConfig, dataset_meta: Any) -> DatasetLayout:
     return layout
 
 
-def _raw_noise(wrist_dim: int, universal_names: list[str]) -> torch.Tensor:
-    """Physical noise of each raw state column: the wrist entries, then joints by kind."""
-    joints = [UNIVERSAL_JOINTS[UNIVERSAL_INDEX[u]].kind for u in universal_names]
-    noise = [PRISMATIC_NOISE if kind == "prismatic" else REVOLUTE_NOISE for kind in joints]
-    return torch.tensor([WRIST_NOISE] * wrist_dim + noise)
-
-
 def _policy_space_tables(
     config: OpfaConfig, layout: DatasetLayout, encoder: OpfaEncodeJointsStep, root: Path
 ) -> dict[str, torch.Tensor]:
+    """The normalisation tables of the policy's state and action: from the statistics `dataset merge`
+    wrote when the policy's entries are columns of the merged dataset, else from the frames."""
+    wrist = len(config.wrist_names)
+    pooled = torch.zeros(config.policy_width, dtype=torch.bool)
+    pooled[:wrist] = config.wrist_normalization == "shared"
+    pooled[wrist:] = config.space.pools_hand_statistics
+    fitted = _merge_statistics(config, layout, encoder, root)
+    state, action, floor = fitted or _frame_statistics(config, layout, encoder, root, pooled)
+    tables = {}
+    for key, stats in ((OBS_STATE, state), (ACTION, action)):
+        affine = affine_tables(stats, config.normalization, pooled, floor)
+        tables |= {f"{key}.{name}": table for name, table in affine.items()}
+    return tables
+
+
+Fitted = tuple[dict[str, torch.Tensor], dict[str, torch.Tensor], torch.Tensor]
+"""Statistics of the policy's state and of its action (`statistics.column_statistics`), and the (E, D)
+noise floor."""
+
+
+def _merge_statistics(
+    config: OpfaConfig, layout: DatasetLayout, encoder: OpfaEncodeJointsStep, root: Path
+) -> Fitted | None:
+    stats = read_statistics(root) if layout.kind == "merged" else None
+    cached = encoder.use_cached_latents and stats is not None and "latent_noise_floor" in stats
+    columns = config.space.merged_columns(len(config.wrist_names), config.latent_dim if cached else None)
+    if stats is None or columns is None:
+        return None
+    n = len(config.embodiments)
+    noise = raw_noise(len(config.wrist_names), list(UNIVERSAL_JOINT_NAMES))
+    mask = torch.cat(
+        [torch.ones(n, len(config.wrist_names)), universal_mask(config.embodiment_joints)], dim=1
+    )
+    floors = [noise * mask] + ([stats["latent_noise_floor"].expand(n, -1)] if cached else [])
+    floor = torch.cat(floors, dim=1)[:, columns]
+    state, action = (
+        {
+            name: value if name == "count" else value[..., columns]
+            for name, value in statistics_of(stats, key).items()
+        }
+        for key in (OBS_STATE, ACTION)
+    )
+    return state, action, floor
+
+
+def _frame_statistics(
+    config: OpfaConfig, layout: DatasetLayout, encoder: OpfaEncodeJointsStep, root: Path, pooled: torch.Tensor
+) -> Fitted:
     columns = [OBS_STATE, ACTION] + ([OBS_EMBODIMENT] if layout.kind == "merged" else [])
     frames = {k: torch.tensor(v, dtype=torch.float32) for k, v in read_columns(root, columns).items()}
     n = len(frames[OBS_STATE])
@@ -147,9 +188,6 @@ def _policy_space_tables(
     out = encode(frames[OBS_STATE], ids, frames[ACTION])
     ids = out[TransitionKey.OBSERVATION][OBS_EMBODIMENT]
     wrist = len(config.wrist_names)
-    pooled = torch.zeros(out[TransitionKey.ACTION].shape[-1], dtype=torch.bool)
-    pooled[:wrist] = config.wrist_normalization == "shared"
-    pooled[wrist:] = config.space.pools_hand_statistics
     if layout.kind == "merged":  # the joints only (cached z would not move with them)
         raw = frames[OBS_STATE][:, : wrist + len(UNIVERSAL_JOINT_NAMES)]
         universal = list(UNIVERSAL_JOINT_NAMES)
@@ -162,19 +200,14 @@ def _policy_space_tables(
         raw,
         out[TransitionKey.OBSERVATION][OBS_STATE],
         ids,
-        _raw_noise(wrist, universal),
+        raw_noise(wrist, universal),
         len(config.embodiments),
         pooled,
     )
     encoder.last_ids = None
-    tables = {}
-    for key, values in (
-        (OBS_STATE, out[TransitionKey.OBSERVATION][OBS_STATE]),
-        (ACTION, out[TransitionKey.ACTION]),
-    ):
-        stats = affine_tables(values, ids, len(config.embodiments), config.normalization, pooled, floor)
-        tables |= {f"{key}.{name}": table for name, table in stats.items()}
-    return tables
+    n_embodiments = len(config.embodiments)
+    state = column_statistics(out[TransitionKey.OBSERVATION][OBS_STATE], ids, n_embodiments)
+    return state, column_statistics(out[TransitionKey.ACTION], ids, n_embodiments), floor
 
 
 def make_opfa_pre_post_processors(
