@@ -28,9 +28,9 @@ import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
-from lerobot_opfa.envs.config import EPISODE_STEPS  # noqa: E402
 from lerobot_opfa.envs.env import OpfaSimEnv  # noqa: E402
 from lerobot_opfa.envs.experts import EXCLUDED_PAIRS, ScriptedExpert  # noqa: E402
+from lerobot_opfa.envs.tasks import TASKS  # noqa: E402
 from lerobot_opfa.hands import builtin_hands  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"
@@ -67,7 +67,7 @@ def success_rate(task: str, hand: str, episodes: int) -> dict:
     for seed in range(episodes):
         env.reset(seed=seed)
         expert = ScriptedExpert(env, np.random.default_rng(seed))
-        for step in range(EPISODE_STEPS[task]):
+        for step in range(TASKS[task].episode_steps):
             if env.step(expert.act())[2]:
                 lengths.append(step + 1)
                 break
@@ -107,7 +107,7 @@ def main() -> None:
     )
     args = parser.parse_args()
     hands = list(builtin_hands()) if args.hands == "all" else args.hands.split(",")
-    tasks = list(EPISODE_STEPS) if args.tasks == "all" else args.tasks.split(",")
+    tasks = list(TASKS) if args.tasks == "all" else args.tasks.split(",")
     path = RESULTS / "sim.json"
     old = json.loads(path.read_text()) if args.resume and path.is_file() else {}
     result = {

@@ -25,6 +25,8 @@ from lerobot_opfa.datasets.io import atomic_directory, read_columns
 from lerobot_opfa.datasets.layout import OPFA_META_FILE, DatasetLayout, hand_entry, latent_names, read_layout
 from lerobot_opfa.datasets.statistics import column_statistics, noise_floor, raw_noise, write_statistics
 from lerobot_opfa.features import OBS_EMBODIMENT
+from lerobot_opfa.galr import checkpoints
+from lerobot_opfa.galr.frozen import encode_joints, galr_fingerprint, known_hand_refs, load_galr
 from lerobot_opfa.hands.registry import load_hand, load_spec
 from lerobot_opfa.hands.universal import UNIVERSAL_JOINT_NAMES
 
@@ -85,8 +87,6 @@ def merge_datasets(
     galr = None
     hands = None
     if galr_path is not None:
-        from lerobot_opfa.galr.frozen import known_hand_refs, load_galr
-
         galr = load_galr(str(galr_path))
         hands = known_hand_refs(galr)
     opened = [_open(Path(p).resolve(), hands) for p in inputs]
@@ -132,9 +132,6 @@ def merge_datasets(
             "hands": user_hands,
         }
         if galr is not None:
-            from lerobot_opfa.galr import checkpoints
-            from lerobot_opfa.galr.frozen import galr_fingerprint
-
             meta |= {"galr": checkpoints.record(galr_path), "galr_fingerprint": galr_fingerprint(galr)}
         (partial / OPFA_META_FILE).write_text(json.dumps(meta, indent=2))
     logger.info("merged %d frames of %s into %s", total, embodiments, output)
@@ -158,8 +155,6 @@ def _statistics(root: Path, embodiments: list[str], galr, n_wrist: int) -> dict[
 
 def _latent_noise_floor(galr, embodiments: list[str], state: torch.Tensor, ids: torch.Tensor, n_wrist: int):
     """(d,): what joint noise moves each entry of z by, over all hands' frames (`statistics.noise_floor`)."""
-    from lerobot_opfa.galr.frozen import encode_joints
-
     joints = n_wrist + len(UNIVERSAL_JOINT_NAMES)
     hands = [galr.hand(name)[0] for name in embodiments]
 
@@ -189,8 +184,6 @@ def _append(merged, source: _Input, embodiments, galr, n_wrist: int, extra: list
         q = torch.from_numpy(values[:, n_wrist:][:, order]).float()
         parts = [values[:, :n_wrist], hand.to_universal(q).cpu().numpy()]
         if galr is not None:
-            from lerobot_opfa.galr.frozen import encode_joints
-
             parts.append(encode_joints(galr, hand.name, q).cpu().numpy())
         return np.concatenate(parts, axis=1).astype(np.float32)
 

@@ -1,6 +1,5 @@
-"""The `opfa` env type for LeRobot (`--env.type=opfa`) and its gymnasium ids (`opfa/<task>-v0`).
-
-Importing this module only registers; the simulator is imported when an env is made."""
+"""The `opfa` env type for LeRobot (`--env.type=opfa`) and its gymnasium ids (`opfa/<task>-v0`): the
+LeRobot adapter on top of the simulator (`env`, `tasks`)."""
 
 from __future__ import annotations
 
@@ -13,30 +12,25 @@ from lerobot.envs.configs import EnvConfig
 from lerobot.processor import ObservationProcessorStep, PolicyProcessorPipeline
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 
+from lerobot_opfa.envs.env import OBS_TYPES, POINTCLOUD_SOURCES, check_choice, parse_cameras
 from lerobot_opfa.envs.regions import parse_regions
+from lerobot_opfa.envs.scene import WRIST_JOINTS
+from lerobot_opfa.envs.tasks import ENV_STATE_DIM, TASKS, check_task
 from lerobot_opfa.features import OBS_HAND, OBS_POINTCLOUD
-
-# Task name -> episode length in steps at the default 20 Hz (the scripted experts finish well within).
-EPISODE_STEPS = {"lift": 100, "lift_box": 100, "pick_place": 160, "press_button": 80, "pull_drawer": 120}
-WRIST_DOF = 6
-ENV_STATE_DIM = 11  # see `tasks`: object position, object quaternion, target position, articulation
-ENTRY_POINT = "lerobot_opfa.envs.env:OpfaSimEnv"
+from lerobot_opfa.hands.registry import load_spec
 
 
 def gym_id(task: str) -> str:
     return f"opfa/{task}-v0"
 
 
-def check_task(task: str | None) -> str:
-    if task not in EPISODE_STEPS:
-        raise ValueError(f"unknown task '{task}'; valid tasks: {', '.join(EPISODE_STEPS)}")
-    return task
-
-
-for _task, _steps in EPISODE_STEPS.items():
-    if gym_id(_task) not in gym.registry:
+for _task in TASKS.values():
+    if gym_id(_task.name) not in gym.registry:
         gym.register(
-            id=gym_id(_task), entry_point=ENTRY_POINT, max_episode_steps=_steps, kwargs={"task": _task}
+            id=gym_id(_task.name),
+            entry_point="lerobot_opfa.envs.env:OpfaSimEnv",
+            max_episode_steps=_task.episode_steps,
+            kwargs={"task": _task.name},
         )
 
 
@@ -60,15 +54,12 @@ class OpfaEnvConfig(EnvConfig):
     features_map: dict[str, str] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        from lerobot_opfa.envs.env import OBS_TYPES, POINTCLOUD_SOURCES, check_choice, parse_cameras
-        from lerobot_opfa.hands.registry import load_spec
-
         check_task(self.task)
         parse_regions(self.regions)
         check_choice("obs_type", self.obs_type, OBS_TYPES)
         check_choice("pointcloud source", self.pointcloud_source, POINTCLOUD_SOURCES)
         parse_cameras(self.depth_cameras)
-        dim = WRIST_DOF + len(load_spec(self.hand).joints)
+        dim = len(WRIST_JOINTS) + len(load_spec(self.hand).joints)
         self.features = {ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(dim,))}
         self.features["agent_pos"] = PolicyFeature(type=FeatureType.STATE, shape=(dim,))
         self.features_map = {ACTION: ACTION, "agent_pos": OBS_STATE}
@@ -82,8 +73,6 @@ class OpfaEnvConfig(EnvConfig):
     def get_env_processors(self) -> tuple[PolicyProcessorPipeline, PolicyProcessorPipeline]:
         """Tells the policy which hand the observations come from, so a cross-embodiment policy picks the
         right embodiment even when two of its hands have the same joint count."""
-        from lerobot_opfa.hands.registry import load_spec
-
         return (
             PolicyProcessorPipeline(steps=[HandNameStep(load_spec(self.hand).name)]),
             PolicyProcessorPipeline(steps=[]),
@@ -109,7 +98,7 @@ class OpfaEnvConfig(EnvConfig):
             "fps": self.fps,
             "render_width": self.render_width,
             "render_height": self.render_height,
-            "max_episode_steps": self.episode_length or EPISODE_STEPS[self.task],
+            "max_episode_steps": self.episode_length or TASKS[self.task].episode_steps,
         }
 
 

@@ -14,10 +14,11 @@ from tqdm import tqdm
 
 from lerobot_opfa.datasets.io import atomic_directory
 from lerobot_opfa.datasets.layout import OPFA_META_FILE, hand_entry
-from lerobot_opfa.envs.config import ENV_STATE_DIM, EPISODE_STEPS, OBS_POINTCLOUD
 from lerobot_opfa.envs.env import OpfaSimEnv
 from lerobot_opfa.envs.experts import ScriptedExpert
 from lerobot_opfa.envs.regions import parse_regions
+from lerobot_opfa.envs.tasks import ENV_STATE_DIM
+from lerobot_opfa.features import OBS_POINTCLOUD
 from lerobot_opfa.hands.registry import hand_ref
 
 logger = logging.getLogger(__name__)
@@ -50,7 +51,7 @@ def expert_episode(
     obs, _ = env.reset(seed=seed, options={"region": region} if region else None)
     expert = ScriptedExpert(env, np.random.default_rng(seed))
     frames, success, held = [], False, 0
-    steps = EPISODE_STEPS[env.task.name]
+    steps = env.task.episode_steps
     for step in range(steps + hold):
         if step == steps and not success:
             break

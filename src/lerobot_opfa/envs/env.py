@@ -8,7 +8,6 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
-from lerobot_opfa.envs.config import ENV_STATE_DIM
 from lerobot_opfa.envs.observation import DepthPointCloud, GeometryPointCloud
 from lerobot_opfa.envs.regions import REGIONS, parse_regions
 from lerobot_opfa.envs.scene import (
@@ -21,7 +20,7 @@ from lerobot_opfa.envs.scene import (
     attach_hand,
     base_spec,
 )
-from lerobot_opfa.envs.tasks import Placement, make_task
+from lerobot_opfa.envs.tasks import ENV_STATE_DIM, Placement, make_task
 from lerobot_opfa.hands.registry import load_hand
 
 logger = logging.getLogger(__name__)

@@ -8,10 +8,12 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from lerobot_opfa.envs.config import check_task
 from lerobot_opfa.envs.regions import GRID_X, GRID_Y
 from lerobot_opfa.envs.scene import OBJECT_FRICTION, Scene
 
+ENV_STATE_DIM = 11
+"""Length of every task's `env_state`: object position (3), object quaternion (4), target position (3),
+articulation (1)."""
 BOX, CAPSULE, CYLINDER = (
     mujoco.mjtGeom.mjGEOM_BOX,
     mujoco.mjtGeom.mjGEOM_CAPSULE,
@@ -39,6 +41,8 @@ class Task:
     description: str
     object_body: str
     """The body the hand acts on (what it must touch to do the task)."""
+    episode_steps: int
+    """Episode length in steps at the default 20 Hz (the scripted experts finish well within)."""
 
     def build(self, spec: mujoco.MjSpec) -> None:
         raise NotImplementedError
@@ -51,7 +55,7 @@ class Task:
         raise NotImplementedError
 
     def env_state(self, scene: Scene, data: mujoco.MjData) -> np.ndarray:
-        """`config.ENV_STATE_DIM` values, the same layout for every task: object position (3), object
+        """`ENV_STATE_DIM` values, the same layout for every task: object position (3), object
         quaternion (4), target position (3), articulation (1: button depth or drawer opening, else 0)."""
         raise NotImplementedError
 
@@ -83,6 +87,7 @@ class Lift(Task):
     """Lift an upright can 8 cm off the table."""
 
     name = "lift"
+    episode_steps = 100
     description = "lift the can"
     object_body = "can"
     radius, half_height, lift_height = 0.032, 0.06, 0.08
@@ -117,6 +122,7 @@ class LiftBox(Lift):
     them (measured with the scripted experts)."""
 
     name = "lift_box"
+    episode_steps = 100
     description = "lift the box"
     object_body = "box"
     half_width, half_height = 0.03, 0.055
@@ -136,6 +142,7 @@ class PickPlace(Task):
     """Put a banana-like object (three capsules in an arc) onto a plate and let go."""
 
     name = "pick_place"
+    episode_steps = 160
     description = "put the banana on the plate"
     object_body = "banana"
     radius, plate_radius, plate_half = 0.024, 0.08, 0.005
@@ -184,6 +191,7 @@ class PressButton(Task):
     """Press a spring-loaded button at least 10 mm down."""
 
     name = "press_button"
+    episode_steps = 80
     description = "press the button"
     object_body = "button"
     base_half, cap_half, travel, threshold = 0.02, 0.01, 0.015, 0.010
@@ -221,6 +229,7 @@ class PullDrawer(Task):
     """Pull a drawer open by at least 10 cm by its bar handle."""
 
     name = "pull_drawer"
+    episode_steps = 120
     description = "pull the drawer open"
     object_body = "drawer"
     handle_height, handle_out, opening = 0.085, 0.055, 0.10
@@ -287,6 +296,12 @@ class PullDrawer(Task):
 
 
 TASKS: dict[str, type[Task]] = {t.name: t for t in (Lift, LiftBox, PickPlace, PressButton, PullDrawer)}
+
+
+def check_task(name: str | None) -> str:
+    if name not in TASKS:
+        raise ValueError(f"unknown task '{name}'; valid tasks: {', '.join(TASKS)}")
+    return name
 
 
 def make_task(name: str) -> Task:

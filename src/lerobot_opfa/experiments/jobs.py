@@ -6,6 +6,7 @@ at all, so an interrupted experiment resumes by running again: what is finished 
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import shutil
@@ -16,6 +17,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from lerobot_opfa.datasets.io import atomic_directory
+from lerobot_opfa.envs.regions import REGIONS
 from lerobot_opfa.experiments.scales import Scale
 from lerobot_opfa.galr import checkpoints
 
@@ -76,14 +78,10 @@ class Evaluation:
 
 def regions_tag(regions: tuple[str, ...]) -> str:
     """Regions as part of a file name: 'all' for the whole table."""
-    from lerobot_opfa.envs.regions import REGIONS
-
     return "all" if set(regions) == set(REGIONS) else "+".join(regions)
 
 
 def _short_hash(parts: list[str]) -> str:
-    import hashlib
-
     return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:10]
 
 
@@ -288,8 +286,6 @@ def write_json(path: Path, content) -> None:
 def galr_identity(galr: str) -> str:
     """A local checkpoint by its weights' content (a regenerated one is another checkpoint), a Hub repo
     id by name."""
-    import hashlib
-
     weights = Path(checkpoints.resolve(galr)) / "model.safetensors"
     if weights.is_file():
         return "sha256:" + hashlib.sha256(weights.read_bytes()).hexdigest()
