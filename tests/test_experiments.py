@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import os
 import time
+from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -273,3 +274,31 @@ def test_epochs_flag_names_the_report_and_lengthens_training(capsys):
     assert scale.steps(3200) == 2 * get_scale("small").steps(3200)
     assert main(["experiment", "object", "--epochs", "0"]) == 2
     assert "--epochs must be positive" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("name", ["spatial_small", "object_small_100ep", "fewshot_small", "nine_small"])
+def test_committed_experiment_tables_regenerate_from_their_json(name):
+    """Today's report code turns each committed experiment's cells into the tables committed with them (their
+    rows; the prose between them has been reworded since some were written)."""
+    report = json.loads((Path(__file__).parents[1] / "benchmarks" / "results" / f"{name}.json").read_text())
+    transfer = report["results"]
+    assert report["table_markdown"].startswith(markdown_table(transfer))
+    inside = [
+        {
+            "kind": protocols.IN_DISTRIBUTION,
+            **e,
+            "successes": [True] * e["successes"] + [False] * (e["episodes"] - e["successes"]),
+        }
+        for e in report["in_distribution"]
+    ]
+    rows = summarize(
+        [
+            {k: v for k, v in r.items() if k not in ("episodes", "success_rate", "ci95")}
+            for r in transfer + inside
+        ]
+    )
+
+    def table_rows(text: str) -> list[str]:
+        return [line for line in text.splitlines() if line.startswith("|")]
+
+    assert table_rows(tables(rows)) == table_rows(report["table_markdown"])
