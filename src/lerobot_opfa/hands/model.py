@@ -27,11 +27,27 @@ DEFAULT_MIN_POINTS_PER_LINK = 8
 
 @dataclass(frozen=True)
 class SurfaceSamples:
-    """Points fixed on the hand's surface: (N, 3) in their link's frame, their link, their (u, v) label."""
+    """Points fixed on the hand's surface: (N, 3) in their link's frame, their link, their (u, v) label.
+    The points are grouped by link in `link_names` order."""
 
     local_points: torch.Tensor
     link_index: torch.Tensor
     labels: torch.Tensor
+
+    @cached_property
+    def posing_weights(self) -> tuple[torch.Tensor, ...]:
+        """Per link, (12, 3 n_l): a link's flattened (3, 4) pose times this is its n_l points posed,
+        flattened (n_l, 3). Posing a batch is then one matrix product per link with the output already in
+        (B, N, 3) order; gathering each point's pose instead moves 16 floats per point, about 10x slower."""
+        ones = self.local_points.new_ones(len(self.local_points), 1)
+        counts = torch.bincount(self.link_index).tolist()
+        weights = []
+        for local in torch.cat([self.local_points, ones], dim=1).split(counts):
+            weight = local.new_zeros(3, 4, len(local), 3)
+            for axis in range(3):
+                weight[axis, :, :, axis] = local.T
+            weights.append(weight.view(12, -1))
+        return tuple(weights)
 
 
 @dataclass(frozen=True)
@@ -267,8 +283,10 @@ class HandModel:
     def point_cloud(self, q: torch.Tensor, n_points: int = 1024, seed: int = 0) -> HandCloud:
         """Surface cloud of the hand at each configuration: points (B, N, 3), labels (B, N, 2)."""
         samples = self.surface_samples(n_points, seed)
-        poses = self.forward_kinematics(q)[:, samples.link_index]  # (B, N, 4, 4)
-        points = torch.einsum("bnij,nj->bni", poses[..., :3, :3], samples.local_points) + poses[..., :3, 3]
+        poses = self.forward_kinematics(q)[..., :3, :].flatten(2)  # (B, L, 12)
+        weights = samples.posing_weights
+        points = torch.cat([poses[:, link] @ w for link, w in enumerate(weights)], dim=1)
+        points = points.view(len(poses), -1, 3)
         labels = samples.labels.expand(points.shape[0], -1, -1)
         return HandCloud(points, labels, q.to(self.device, self.dtype))
 
