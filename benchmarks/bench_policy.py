@@ -3,7 +3,8 @@ training steps per second (GaLR space with cached latents, raw joints, GaLR enco
 diffusion) and latency per action chunk at batch 1 (horizon 16, 2 observation steps, 8 action steps,
 10 DDIM steps for both), split into preprocessor (opfa: GaLR encode of the hand state), `select_action`
 and postprocessor (opfa: GaLR decode), plus opfa's point encoder / U-Net loop / GaLR decode on their own,
-and opfa sampled through float32 weights (`cpu_float16_weights=False`) with its largest action difference.
+and opfa's same weights sampled through float32 weights (`cpu_float16_weights=False`, with its largest
+action difference) and through the plain U-Net that training runs (`cpu_fast_sampling=False`).
 
     .venv/bin/python benchmarks/bench_policy.py [--galr outputs/galr_default] [--steps 10]
 
@@ -189,24 +190,31 @@ def main() -> None:
             ),
         }
         built = {name: build(config, root, dataset_name) for name, (config, dataset_name) in variants.items()}
-        # The same weights, sampled through float32 weights: what `cpu_float16_weights` saves and changes.
+        # The same weights, sampled through float32 weights (what `cpu_float16_weights` saves and changes)
+        # and through the plain U-Net (what `cpu_fast_sampling` saves).
         float32 = "opfa galr (cached z), float32 weights"
-        config = OpfaConfig(galr_path=galr_path, cpu_float16_weights=False, **MATCHED)
-        variants[float32] = (config, "merged")
-        built[float32] = build(config, root, "merged")
+        plain = "opfa galr (cached z), plain sampling"
+        same_weights = {
+            float32: OpfaConfig(galr_path=galr_path, cpu_float16_weights=False, **MATCHED),
+            plain: OpfaConfig(galr_path=galr_path, cpu_fast_sampling=False, **MATCHED),
+        }
+        for name, config in same_weights.items():
+            variants[name] = (config, "merged")
+            built[name] = build(config, root, "merged")
         # Round-robin over the variants, so load from other processes hits them all alike.
         online = "opfa galr, z encoded per step"  # a GaLR forward per frame: a few steps suffice
         timers = {
             name: TrainTimer(p, pre, ds, args.batch_size)
             for name, (p, pre, _, ds) in built.items()
-            if name != float32  # trains exactly as the float16 one
+            if name not in same_weights  # train exactly as the float16 one
         }
         steps = {name: [] for name in built}
         for round_ in range(args.steps + 2):
             for name, timer in timers.items():
                 if name != online or round_ < 4:
                     steps[name].append(timer())
-        built[float32][0].load_state_dict(built["opfa galr (cached z)"][0].state_dict())
+        for name in same_weights:
+            built[name][0].load_state_dict(built["opfa galr (cached z)"][0].state_dict())
         latency = {name: [] for name in built if name != online}
         for _ in range(args.repeats + 2):
             for name in latency:
@@ -266,6 +274,8 @@ def main() -> None:
         "float16_vs_float32_weights_select_action_speedup": by[float32]["select_action_ms"]
         / opfa["select_action_ms"],
         "float16_vs_float32_weights_max_action_difference": float16_error,
+        "fast_vs_plain_sampling_select_action_speedup": by[plain]["select_action_ms"]
+        / opfa["select_action_ms"],
     }
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / "policy.json").write_text(json.dumps(result, indent=2))
