@@ -26,7 +26,13 @@ from lerobot_opfa.datasets.layout import OPFA_META_FILE, DatasetLayout, hand_ent
 from lerobot_opfa.datasets.statistics import column_statistics, noise_floor, raw_noise, write_statistics
 from lerobot_opfa.features import OBS_EMBODIMENT
 from lerobot_opfa.galr import checkpoints
-from lerobot_opfa.galr.frozen import encode_joints, galr_fingerprint, known_hand_refs, load_galr
+from lerobot_opfa.galr.frozen import (
+    encode_joints,
+    encode_universal,
+    galr_fingerprint,
+    known_hand_refs,
+    load_galr,
+)
 from lerobot_opfa.hands.registry import load_hand, load_spec
 from lerobot_opfa.hands.universal import UNIVERSAL_JOINT_NAMES
 
@@ -156,14 +162,9 @@ def _statistics(root: Path, embodiments: list[str], galr, n_wrist: int) -> dict[
 def _latent_noise_floor(galr, embodiments: list[str], state: torch.Tensor, ids: torch.Tensor, n_wrist: int):
     """(d,): what joint noise moves each entry of z by, over all hands' frames (`statistics.noise_floor`)."""
     joints = n_wrist + len(UNIVERSAL_JOINT_NAMES)
-    hands = [galr.hand(name)[0] for name in embodiments]
 
     def encode(rows: torch.Tensor, row_ids: torch.Tensor) -> torch.Tensor:
-        z = rows.new_zeros(len(rows), galr.config.latent_dim)
-        for e in row_ids.unique().tolist():
-            mine = row_ids == e
-            z[mine] = encode_joints(galr, embodiments[e], hands[e].from_universal(rows[mine, n_wrist:]))
-        return z
+        return encode_universal(galr, embodiments, rows[:, n_wrist:], row_ids)
 
     noise = raw_noise(n_wrist, list(UNIVERSAL_JOINT_NAMES))
     pooled = torch.ones(galr.config.latent_dim, dtype=torch.bool)

@@ -53,3 +53,16 @@ def encode_joints(galr: Galr, hand: str, q: torch.Tensor, batch_size: int = 1024
     z = [galr.encode_joints(hand, flat[i : i + batch_size]) for i in range(0, len(flat), batch_size)]
     out = torch.cat(z) if z else flat.new_zeros(0, galr.config.latent_dim)
     return out.reshape(*q.shape[:-1], -1)
+
+
+@torch.no_grad()
+def encode_universal(
+    galr: Galr, hands: list[str], universal: torch.Tensor, ids: torch.Tensor
+) -> torch.Tensor:
+    """(B, ..., U) universal joints of rows whose hand is `hands[ids]` (ids (B,)) -> (B, ..., latent_dim)."""
+    z = universal.new_zeros(*universal.shape[:-1], galr.config.latent_dim)
+    for index in ids.unique().tolist():
+        rows = ids == index
+        q = galr.hand(hands[index])[0].from_universal(universal[rows])
+        z[rows] = encode_joints(galr, hands[index], q)
+    return z

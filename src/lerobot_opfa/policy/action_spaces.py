@@ -33,6 +33,7 @@ class Hands(Protocol):
 
     def model(self, index: int) -> HandModel: ...
     def encode(self, index: int, q: Tensor) -> Tensor: ...
+    def encode_universal(self, universal: Tensor, ids: Tensor) -> Tensor: ...
     def decode(self, index: int, z: Tensor) -> Tensor: ...
 
 
@@ -107,11 +108,7 @@ class GalrSpace(ActionSpace):
         return hands.encode(index, q)
 
     def from_universal(self, hands, universal, ids):
-        z = universal.new_zeros(*universal.shape[:-1], hands.latent_dim)
-        for index in ids.unique().tolist():
-            rows = ids == index
-            z[rows] = hands.encode(index, hands.model(index).from_universal(universal[rows]))
-        return z
+        return hands.encode_universal(universal, ids)
 
     def to_joints(self, hands, index, rest):
         z = rest.reshape(-1, rest.shape[-1])

@@ -27,7 +27,7 @@ from lerobot.processor import ObservationProcessorStep, ProcessorStep, Processor
 from lerobot.utils.constants import ACTION, OBS_STATE
 
 from lerobot_opfa.features import OBS_EMBODIMENT, OBS_HAND, OBS_POINTCLOUD, batch_embodiments
-from lerobot_opfa.galr.frozen import encode_joints
+from lerobot_opfa.galr.frozen import encode_joints, encode_universal
 from lerobot_opfa.galr.model import Galr
 from lerobot_opfa.hands.model import HandModel
 from lerobot_opfa.hands.registry import load_hand, load_spec
@@ -105,6 +105,9 @@ class _HandSpace:
 
     def encode(self, index: int, q: torch.Tensor) -> torch.Tensor:
         return encode_joints(self.galr_on(q.device), self.embodiments[index], q)
+
+    def encode_universal(self, universal: torch.Tensor, ids: torch.Tensor) -> torch.Tensor:
+        return encode_universal(self.galr_on(universal.device), self.embodiments, universal, ids)
 
     def decode(self, index: int, z: torch.Tensor) -> torch.Tensor:
         return self.galr_on(z.device).decode(z, self.embodiments[index])
