@@ -92,8 +92,9 @@ def _recorded_galr(record: dict) -> str:
     )
 
 
-def resolve_config(config: OpfaConfig, dataset_meta: Any) -> DatasetLayout:
-    """Fill the config's dataset-derived fields (embodiments, wrist names, latent size) from a dataset."""
+def resolve_config(config: OpfaConfig, dataset_meta: Any) -> tuple[DatasetLayout, Galr | None]:
+    """Fill the config's dataset-derived fields (embodiments, wrist names, latent size) from a dataset;
+    returns its layout and the policy's frozen GaLR (`policy_galr`)."""
     galr = policy_galr(config, dataset_meta.root)
     layout = read_layout(
         dataset_meta.features,
@@ -118,7 +119,7 @@ def resolve_config(config: OpfaConfig, dataset_meta: Any) -> DatasetLayout:
     config.space.check_embodiments(layout.embodiments)
     config.embodiments, config.wrist_names = list(layout.embodiments), list(layout.wrist_names)
     config.embodiment_joints = [load_spec(ref).universal_names for ref in layout.hand_refs]
-    return layout
+    return layout, galr
 
 
 def _policy_space_tables(
@@ -148,16 +149,14 @@ def _merge_statistics(
     config: OpfaConfig, layout: DatasetLayout, encoder: OpfaEncodeJointsStep, root: Path
 ) -> Fitted | None:
     stats = read_statistics(root) if layout.kind == "merged" else None
-    cached = encoder.use_cached_latents and stats is not None and "latent_noise_floor" in stats
-    columns = config.space.merged_columns(len(config.wrist_names), config.latent_dim if cached else None)
+    cached = encoder.use_cached_latents  # the merge that cached them wrote their noise floor
+    wrist, n = len(config.wrist_names), len(config.embodiments)
+    columns = config.space.merged_columns(wrist, config.latent_dim if cached else None)
     if stats is None or columns is None:
         return None
-    n = len(config.embodiments)
-    noise = raw_noise(len(config.wrist_names), list(UNIVERSAL_JOINT_NAMES))
-    mask = torch.cat(
-        [torch.ones(n, len(config.wrist_names)), universal_mask(config.embodiment_joints)], dim=1
-    )
-    floors = [noise * mask] + ([stats["latent_noise_floor"].expand(n, -1)] if cached else [])
+    mask = torch.cat([torch.ones(n, wrist), universal_mask(config.embodiment_joints)], dim=1)
+    noise = raw_noise(wrist, list(UNIVERSAL_JOINT_NAMES)) * mask
+    floors = [noise] + ([stats["latent_noise_floor"].expand(n, -1)] if cached else [])
     floor = torch.cat(floors, dim=1)[:, columns]
     state, action = (
         {
@@ -221,8 +220,7 @@ def make_opfa_pre_post_processors(
     meta = dataset_meta if dataset_meta is not None else getattr(config, "_runtime_dataset_meta", None)
     if meta is None:
         raise ValueError("opfa processors are built from the training dataset: pass dataset_meta")
-    layout = resolve_config(config, meta)
-    galr = policy_galr(config, meta.root)
+    layout, galr = resolve_config(config, meta)
     cached = galr is not None and layout.latent_dim > 0  # policy_galr checked that this GaLR made them
     shared = dict(
         action_space=config.action_space,
