@@ -98,10 +98,8 @@ class ConditionalUnet1d(nn.Module):
         self.final = ConvBlock(down_dims[0], down_dims[0], kernel, groups)
         self.n_heads, self.action_dim = n_heads, action_dim
         self.heads = nn.Conv1d(down_dims[0], action_dim * n_heads, 1)
-
-    def blocks(self) -> list[FiLMResidualBlock]:
-        """The FiLM blocks in the order `forward` runs them."""
-        return [m for m in self.modules() if isinstance(m, FiLMResidualBlock)]
+        # The FiLM blocks in the order `forward` runs them, listed once: sampling reads them every chunk.
+        self.film_blocks = tuple(m for m in self.modules() if isinstance(m, FiLMResidualBlock))
 
     def forward(self, x: Tensor, t: Tensor, cond: Tensor, head: Tensor | None = None) -> Tensor:
         """x (B, T, A) noisy chunk, t (B,) steps, cond (B, C), head (B,) -> (B, T, A)."""

@@ -90,7 +90,7 @@ def films(unet: ConditionalUnet1d, t: Tensor, cond: Tensor) -> list[Tensor]:
     """Each block's FiLM output (B, 1, F) for steps t (B,) and observation features cond (B, C): all that
     does not depend on the noisy sample. The Mish every block's `film` starts with is applied once here."""
     cond = F.mish(torch.cat([unet.step_embedding(t), cond], dim=-1))
-    return [block.film[1](cond).unsqueeze(1) for block in unet.blocks()]
+    return [block.film[1](cond).unsqueeze(1) for block in unet.film_blocks]
 
 
 def denoise(unet: ConditionalUnet1d, x: Tensor, step_films: list[Tensor], head: Tensor | None) -> Tensor:
