@@ -144,9 +144,11 @@ class OpfaPolicy(PreTrainedPolicy):
         steps = self.ddim.timesteps
         if self.fast_sampler is not None and not (self.training or torch.is_grad_enabled()):
             return self.ddim.sample(self.fast_sampler.denoiser(steps, cond, head), noise)
-        return self.ddim.sample(
-            lambda x, i: self.unet(x, cond.new_full((len(x),), steps[i]), cond, head), noise
-        )
+
+        def denoise(x: Tensor, i: int) -> Tensor:
+            return self.unet(x, torch.full((len(x),), steps[i], device=x.device), cond, head)
+
+        return self.ddim.sample(denoise, noise)
 
     @torch.inference_mode()
     def select_action(self, batch: dict[str, Tensor], noise: Tensor | None = None) -> Tensor:
