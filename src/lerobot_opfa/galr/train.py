@@ -111,9 +111,7 @@ def extended(init: str, hands: list[str]) -> Galr:
     new = [r for r in records if r["name"] not in known]
     if not new:
         raise ValueError(f"--init {init} already has every hand asked for ({', '.join(sorted(known))})")
-    grown = Galr(
-        replace(galr.config, hands=[*galr.config.hands, *new])
-    )  # saved with the config it is built with
+    grown = Galr(replace(galr.config, hands=[*galr.config.hands, *new]))
     grown.load_state_dict(galr.state_dict())
     return grown
 
