@@ -17,11 +17,12 @@ class HandBatch:
     labels: torch.Tensor
     level1: torch.Tensor
     superpoints: torch.Tensor
+    stem: torch.Tensor
     groups: list[tuple[str, slice, torch.Tensor]]
     """(hand name, its rows of the batch, its joint targets in loss units (n, dof))."""
 
     def encoder_inputs(self) -> tuple[torch.Tensor, ...]:
-        return self.points, self.labels, self.level1, self.superpoints
+        return self.points, self.labels, self.level1, self.superpoints, self.stem
 
 
 def make_batch(galr: Galr, joints: dict[str, torch.Tensor]) -> HandBatch:
@@ -34,8 +35,7 @@ def make_batch(galr: Galr, joints: dict[str, torch.Tensor]) -> HandBatch:
             (name, slice(start, start + len(q)), q.to(galr.device) * joint_scale(model).to(galr.device))
         )
         start += len(q)
-    points, labels, level1, superpoints = (torch.cat(x) for x in zip(*parts, strict=True))
-    return HandBatch(points, labels, level1, superpoints, groups)
+    return HandBatch(*(torch.cat(x) for x in zip(*parts, strict=True)), groups)
 
 
 SHARES = ("dof", "even")

@@ -35,20 +35,27 @@ class KPConv(nn.Module):
         nn.init.kaiming_uniform_(self.weight.view(n_kernel * in_channels, out_channels).T, a=math.sqrt(5))
 
     def forward(self, queries, supports, features, neighbors) -> torch.Tensor:
-        """queries (B, Q, 3), supports (B, S, 3), features (B, S, C_in), neighbors (B, Q, K) -> (B, Q, C)."""
-        relative = gather_neighbors(supports, neighbors, shadow=1e6) - queries.unsqueeze(2)  # (B, Q, K, 3)
-        # |y - x_k|^2 = |y|^2 - 2 y.x_k + |x_k|^2, without a (B, Q, K, n_kernel, 3) tensor.
-        squared = (
-            relative.square().sum(-1, keepdim=True)
-            - 2 * relative @ self.kernel.T
-            + self.kernel.square().sum(-1)
-        )
-        influence = (1 - squared.clamp(min=0).sqrt() / self.sigma).clamp(min=0)  # (B, Q, K, n_kernel)
-        weighted = torch.einsum("bqkn,bqkc->bqnc", influence, gather_neighbors(features, neighbors))
+        """queries (B, Q, 3), supports (B, S, 3), features (B, S, C_in) or None for a constant 1 (the stem,
+        which sees geometry only), neighbors (B, Q, K) -> (B, Q, C_out)."""
+        influence = self.influence(queries, supports, neighbors)  # (B, Q, K, n_kernel)
+        if features is None:
+            weighted = influence.sum(2)  # (B, Q, n_kernel)
+        else:
+            weighted = influence.transpose(2, 3) @ gather_neighbors(features, neighbors)  # (B, Q, n, C_in)
         out = weighted.flatten(2) @ self.weight.flatten(0, 1)
         # Average over the neighbours that exist (KPConv's density normalisation).
         count = (neighbors < supports.shape[1]).sum(-1, keepdim=True).clamp(min=1)
         return out / count
+
+    @torch.no_grad()
+    def influence(self, queries, supports, neighbors) -> torch.Tensor:
+        """max(0, 1 - |y_i - x_k| / sigma) as (B, Q, K, n_kernel). Geometry only (the kernel is fixed and
+        clouds carry no gradient), so it is built in place: one (B, Q, K, n_kernel) buffer, no copies."""
+        relative = gather_neighbors(supports, neighbors, shadow=1e6) - queries.unsqueeze(2)  # (B, Q, K, 3)
+        # |y - x_k|^2 = |y|^2 - 2 y.x_k + |x_k|^2, without a (B, Q, K, n_kernel, 3) tensor.
+        squared = relative @ (-2 * self.kernel.T)
+        squared.add_(relative.square().sum(-1, keepdim=True)).add_(self.kernel.square().sum(-1))
+        return squared.clamp_(min=0).sqrt_().mul_(-1 / self.sigma).add_(1).clamp_(min=0)
 
 
 class UnaryBlock(nn.Sequential):

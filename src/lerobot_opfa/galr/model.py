@@ -37,18 +37,23 @@ class GalrConfig:
     """Where r^s enters the transformer: the superpoint features (`features`) or the attention's relative
     term (`attention`, the only choice before this field existed; see `transformer.py`)."""
     decoder: Literal["unified", "per_embodiment"] = "unified"
+    stem_neighbors: Literal["link", "radius"] = "link"
+    """The stem's neighbourhoods (dense points -> level 1): the points within the radius on the query's own
+    link, found once per hand (`link`), or on any link, searched in every cloud (`radius`, the only choice
+    before this field existed, three times the stem's cost). Contacts between links enter at level 1."""
     n_points: int = 1024
-    n_level1: int = 256
-    n_superpoints: int = 48
+    n_level1: int = 128
+    n_superpoints: int = 32
     sample_seed: int = 0
     """Seed of the per-link surface samples: fixed, so a hand's cloud is the same in pretraining and use."""
-    grid: float = 0.008
-    """Level-1 grid size dl_1 in metres; superpoints use 2 dl_1. Radii and sigmas are in grid units."""
+    grid: float = 0.011
+    """Level-1 grid size dl_1 in metres; superpoints use 2 dl_1. Radii and sigmas are in grid units. With 128
+    level-1 points a hand's level-1 spacing is about 1.1 cm, so each keeps ~9 neighbours within 2.5 dl_1."""
     radius_factor: float = 2.5
     sigma_factor: float = 1.5
     kernel_points: int = 15
     neighbor_limits: tuple[int, int, int, int] = (40, 16, 40, 12)
-    """Neighbours kept for dense->level1, level1, level1->superpoints, superpoints: about the 70th-90th
+    """Neighbours kept for dense->level1, level1, level1->superpoints, superpoints: about the 60th-90th
     percentile of the counts within each radius over random states of the 11 built-in hands."""
     widths: tuple[int, int, int] = (64, 128, 256)
     transformer_dim: int = 128
@@ -69,6 +74,8 @@ class GalrConfig:
             raise ValueError(f"encoder must be 'kpconv_transformer' or 'pointnet', got '{self.encoder}'")
         if self.decoder not in ("unified", "per_embodiment"):
             raise ValueError(f"decoder must be 'unified' or 'per_embodiment', got '{self.decoder}'")
+        if self.stem_neighbors not in ("link", "radius"):
+            raise ValueError(f"stem_neighbors must be 'link' or 'radius', got '{self.stem_neighbors}'")
         if self.semantic_target not in ("features", "attention"):
             raise ValueError(
                 f"semantic_target must be 'features' or 'attention', got '{self.semantic_target}'"
@@ -103,6 +110,7 @@ class KPConvTransformerEncoder(nn.Module):
         s1, s2 = config.sigma_factor * dl1, config.sigma_factor * dl2
         c1, c2, c3 = config.widths
         self.radii, self.limits = (r1, r1, r2, r2), config.neighbor_limits
+        self.search_stem = config.stem_neighbors == "radius"
         self.stem = KPConv(1, c1, r1, s1, config.kernel_points)
         self.stem_norm = nn.Sequential(nn.LayerNorm(c1), nn.LeakyReLU(0.1))
         self.level1 = ResidualBlock(c1, c2, r1, s1, strided=False, n_kernel=config.kernel_points)
@@ -120,16 +128,17 @@ class KPConvTransformerEncoder(nn.Module):
         )
         self.to_latent = nn.Linear(config.transformer_dim, config.latent_dim)
 
-    def forward(self, points, labels, level1, superpoints) -> torch.Tensor:
+    def forward(self, points, labels, level1, superpoints, stem) -> torch.Tensor:
         p1, p2 = _select(points, level1), _select(points, superpoints)
-        pairs = ((p1, points), (p1, p1), (p2, p1), (p2, p2))
+        searches = ((p1, p1), (p2, p1), (p2, p2))
         with torch.no_grad():
-            n01, n11, n12, n22 = (
+            if self.search_stem:
+                stem = radius_neighbors(p1, points, self.radii[0], self.limits[0])
+            n11, n12, n22 = (
                 radius_neighbors(q, s, r, k)
-                for (q, s), r, k in zip(pairs, self.radii, self.limits, strict=True)
+                for (q, s), r, k in zip(searches, self.radii[1:], self.limits[1:], strict=True)
             )
-        ones = points.new_ones(*points.shape[:2], 1)
-        f1 = self.stem_norm(self.stem(p1, points, ones, n01))
+        f1 = self.stem_norm(self.stem(p1, points, None, stem))
         f1 = self.level1(p1, p1, f1, n11)
         f2 = self.level2(p2, p2, self.down(p2, p1, f1, n12), n22)
         x = self.transformer(self.to_transformer(f2), p2, _select(labels, superpoints))
@@ -143,7 +152,7 @@ class PointNetLatentEncoder(nn.Module):
         super().__init__()
         self.pointnet = PointNetEncoder(config.latent_dim, config.widths, in_dim=5)
 
-    def forward(self, points, labels, level1, superpoints) -> torch.Tensor:
+    def forward(self, points, labels, level1, superpoints, stem) -> torch.Tensor:
         return self.pointnet(torch.cat([points, labels.float()], dim=-1))
 
 
@@ -157,8 +166,8 @@ class Galr(nn.Module, PyTorchModelHubMixin, library_name="lerobot-opfa", tags=["
 
     def __init__(self, config: GalrConfig | dict):
         super().__init__()
-        if isinstance(config, dict) and "semantic_target" not in config:
-            config = config | {"semantic_target": "attention"}  # a checkpoint saved before the field existed
+        if isinstance(config, dict):  # a checkpoint saved before these fields existed
+            config = {"semantic_target": "attention", "stem_neighbors": "radius"} | config
         self.config = config if isinstance(config, GalrConfig) else GalrConfig(**config)
         encoders = {"kpconv_transformer": KPConvTransformerEncoder, "pointnet": PointNetLatentEncoder}
         self.encoder = encoders[self.config.encoder](self.config)
@@ -194,8 +203,11 @@ class Galr(nn.Module, PyTorchModelHubMixin, library_name="lerobot-opfa", tags=["
                     f"{model.spec.path} has a different hash); retrain or use the original files"
                 )
             c = self.config
-            index = pyramid_index(model, c.n_points, c.n_level1, c.n_superpoints, c.sample_seed)
-            self._hands[key] = (model, PyramidIndex(index.level1.to(device), index.superpoints.to(device)))
+            stem_radius, stem_limit = c.radius_factor * c.grid, c.neighbor_limits[0]
+            index = pyramid_index(
+                model, c.n_points, c.n_level1, c.n_superpoints, c.sample_seed, stem_radius, stem_limit
+            )
+            self._hands[key] = (model, index.to(device))
         return self._hands[key]
 
     def _record(self, name: str) -> dict:
@@ -219,16 +231,22 @@ class Galr(nn.Module, PyTorchModelHubMixin, library_name="lerobot-opfa", tags=["
         return next(self.parameters()).device
 
     # --- encode / decode ----------------------------------------------------------------------------
-    def forward(self, points, labels, level1, superpoints) -> torch.Tensor:
-        """points (B, N, 3), labels (B, N, 2), pyramid indices (B, N1), (B, N2) -> z (B, latent_dim)."""
-        return self.encoder(points, labels, level1, superpoints)
+    def forward(self, points, labels, level1, superpoints, stem) -> torch.Tensor:
+        """points (B, N, 3), labels (B, N, 2), pyramid indices (B, N1), (B, N2), (B, N1, K) -> z (B, L)."""
+        return self.encoder(points, labels, level1, superpoints, stem)
 
     def cloud_inputs(self, hand: str | HandModel, q: torch.Tensor) -> tuple[torch.Tensor, ...]:
         """Everything `forward` needs for a batch of one hand's joint vectors (B, dof)."""
         model, index = self.hand(hand)
         cloud = model.point_cloud(q.to(self.device), self.config.n_points, seed=self.config.sample_seed)
         b = len(q)
-        return cloud.points, cloud.labels, index.level1.expand(b, -1), index.superpoints.expand(b, -1)
+        return (
+            cloud.points,
+            cloud.labels,
+            index.level1.expand(b, -1),
+            index.superpoints.expand(b, -1),
+            index.stem.expand(b, -1, -1),
+        )
 
     def encode_joints(self, hand: str | HandModel, q: torch.Tensor) -> torch.Tensor:
         """(B, dof) joints of `hand` -> (B, latent_dim): G = f_theta o FK."""

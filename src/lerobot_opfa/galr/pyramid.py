@@ -18,10 +18,15 @@ from lerobot_opfa.hands.model import HandModel
 
 @dataclass(frozen=True)
 class PyramidIndex:
-    """Indices into the dense cloud of one hand: level 1 (N1,) and superpoints (N2,), a subset of level 1."""
+    """Indices into the dense cloud of one hand: level 1 (N1,), superpoints (N2,), a subset of level 1, and
+    each level-1 point's neighbours on its own link (N1, K), shadow index N (see `link_neighbors`)."""
 
     level1: torch.Tensor
     superpoints: torch.Tensor
+    stem: torch.Tensor
+
+    def to(self, device) -> PyramidIndex:
+        return PyramidIndex(self.level1.to(device), self.superpoints.to(device), self.stem.to(device))
 
 
 def farthest_point_sampling(points: np.ndarray, k: int) -> np.ndarray:
@@ -48,8 +53,28 @@ def _per_link_subset(local: np.ndarray, link_index: np.ndarray, candidates: np.n
     return np.sort(subset)
 
 
+def link_neighbors(
+    local: torch.Tensor, link_index: torch.Tensor, queries: torch.Tensor, radius: float, limit: int
+) -> torch.Tensor:
+    """(Q, limit) indices of the dense points within `radius` of each query on the query's own link,
+    nearest first, padded with the shadow index N. A link is rigid, so these are the same in every pose
+    and are found once per hand, in the links' own frames: the stem's neighbourhoods need no search."""
+    distances = torch.cdist(local[queries], local)
+    distances[link_index[queries].unsqueeze(1) != link_index.unsqueeze(0)] = torch.inf
+    k = min(limit, len(local))
+    nearest, index = distances.topk(k, dim=-1, largest=False)
+    index = index.masked_fill(nearest > radius, len(local))
+    return torch.cat([index, index.new_full((len(queries), limit - k), len(local))], dim=-1)
+
+
 def pyramid_index(
-    hand: HandModel, n_points: int, n_level1: int, n_superpoints: int, seed: int = 0
+    hand: HandModel,
+    n_points: int,
+    n_level1: int,
+    n_superpoints: int,
+    seed: int = 0,
+    stem_radius: float = 0.02,
+    stem_limit: int = 40,
 ) -> PyramidIndex:
     if not n_points >= n_level1 >= n_superpoints >= len(hand.link_names):
         raise ValueError(
@@ -60,4 +85,8 @@ def pyramid_index(
     local, link_index = samples.local_points.cpu().numpy(), samples.link_index.cpu().numpy()
     level1 = _per_link_subset(local, link_index, np.arange(n_points), n_level1)
     superpoints = _per_link_subset(local, link_index, level1, n_superpoints)
-    return PyramidIndex(torch.from_numpy(level1), torch.from_numpy(superpoints))
+    level1 = torch.from_numpy(level1)
+    stem = link_neighbors(
+        samples.local_points.cpu(), samples.link_index.cpu(), level1, stem_radius, stem_limit
+    )
+    return PyramidIndex(level1, torch.from_numpy(superpoints), stem)

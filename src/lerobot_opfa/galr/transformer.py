@@ -29,11 +29,16 @@ SemanticTarget = Literal["features", "attention"]
 MAX_SEGMENTS = 8
 
 
-def sinusoidal(x: torch.Tensor, dim: int) -> torch.Tensor:
-    """(...,) -> (..., dim) transformer-style sinusoidal embedding of a scalar."""
+def sinusoidal(x: torch.Tensor, dim: int, mean_over: int | None = None) -> torch.Tensor:
+    """(...,) -> (..., dim) transformer-style sinusoidal embedding of a scalar; with `mean_over`, its mean
+    over that dimension of x, taken before sine and cosine are interleaved (the widest tensor is the
+    (..., dim / 2) angle table)."""
     freq = torch.exp(torch.arange(0, dim, 2, device=x.device, dtype=x.dtype) * (-math.log(10000.0) / dim))
     angles = x.unsqueeze(-1) * freq
-    return torch.stack([angles.sin(), angles.cos()], dim=-1).flatten(-2)
+    sin, cos = angles.sin(), angles.cos()
+    if mean_over is not None:
+        sin, cos = sin.mean(mean_over), cos.mean(mean_over)
+    return torch.stack([sin, cos], dim=-1).flatten(-2)
 
 
 class GeometricStructureEmbedding(nn.Module):
@@ -49,20 +54,29 @@ class GeometricStructureEmbedding(nn.Module):
 
     def forward(self, points: torch.Tensor) -> torch.Tensor:
         """(B, N, 3) -> (B, N, N, dim)."""
+        distance_code, angle_code = self.codes(points)
+        embedding = self.distance_proj(distance_code)
+        if angle_code is not None:
+            embedding = embedding + self.angle_proj(angle_code)
+        return embedding
+
+    @torch.no_grad()
+    def codes(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """The sinusoidal codes of distances and angles, (B, N, N, dim) each: geometry only, no gradient."""
         offsets = points.unsqueeze(1) - points.unsqueeze(2)  # [b, i, j] = p_j - p_i
         distances = offsets.norm(dim=-1)
-        embedding = self.distance_proj(sinusoidal(distances / self.sigma_d, self.dim))
+        distance_code = sinusoidal(distances / self.sigma_d, self.dim)
         k = min(self.angle_k, points.shape[1] - 1)
-        if k > 0:
-            knn = distances.topk(k + 1, dim=-1, largest=False).indices[..., 1:]  # (B, N, k), self excluded
-            directions = offsets / distances.unsqueeze(-1).clamp(min=1e-9)
-            anchors = directions.gather(2, knn.unsqueeze(-1).expand(-1, -1, -1, 3))  # (B, N, k, 3)
-            cosine = torch.einsum("bijc,bikc->bijk", directions, anchors).clamp(-1 + 1e-6, 1 - 1e-6)
-            angles = torch.acos(cosine)  # (B, N, N, k): angle at p_i between p_j and p_i's k-th neighbour
-            # Mean over the k neighbours (GeoTransformer takes the max): the projection then commutes with
-            # the pooling, so the k-fold tensor is geometry only and needs no gradient.
-            embedding = embedding + self.angle_proj(sinusoidal(angles * self.factor_a, self.dim).mean(dim=3))
-        return embedding
+        if k == 0:
+            return distance_code, None
+        knn = distances.topk(k + 1, dim=-1, largest=False).indices[..., 1:]  # (B, N, k), self excluded
+        directions = offsets / distances.unsqueeze(-1).clamp(min=1e-9)
+        anchors = directions.gather(2, knn.unsqueeze(-1).expand(-1, -1, -1, 3))  # (B, N, k, 3)
+        cosine = torch.einsum("bijc,bikc->bijk", directions, anchors).clamp(-1 + 1e-6, 1 - 1e-6)
+        angles = torch.acos(cosine)  # (B, N, N, k): angle at p_i between p_j and p_i's k-th neighbour
+        # Mean over the k neighbours (GeoTransformer takes the max): the projection then commutes with
+        # the pooling, so the k-fold tensor is geometry only and needs no gradient.
+        return distance_code, sinusoidal(angles * self.factor_a, self.dim, mean_over=3)
 
 
 class SemanticLabelEmbedding(nn.Module):
