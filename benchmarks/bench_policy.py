@@ -1,10 +1,12 @@
 """The opfa policy's speed on the CPU next to LeRobot's stock diffusion policy, in the same run:
 training steps per second (GaLR space with cached latents, raw joints, GaLR encoded on the fly, stock
 diffusion) and latency per action chunk at batch 1 (horizon 16, 2 observation steps, 8 action steps,
-10 DDIM steps for both), split into preprocessor (opfa: GaLR encode of the hand state), `select_action`
-and postprocessor (opfa: GaLR decode), plus opfa's point encoder / U-Net loop / GaLR decode on their own,
-and opfa's same weights sampled through float32 weights (`cpu_float16_weights=False`, with its largest
-action difference) and through the plain U-Net that training runs (`cpu_fast_sampling=False`).
+10 DDIM steps for both), split into preprocessor, `select_action` and postprocessor (opfa: GaLR decode),
+plus opfa's point encoder / U-Net loop / GaLR decode on their own; preprocessor and `select_action` per
+chunk of a batch-1 rollout (the preprocessor defers the GaLR encode of the hand state to the chunks that
+read it), and the same encoding every state; and opfa's same weights sampled through float32 weights
+(`cpu_float16_weights=False`, with its largest action difference) and through the plain U-Net that
+training runs (`cpu_fast_sampling=False`).
 
     .venv/bin/python benchmarks/bench_policy.py [--galr outputs/galr_default] [--steps 10]
 
@@ -164,6 +166,34 @@ def opfa_breakdown_ms(policy, pre, post, obs: dict, repeats: int) -> dict[str, f
     return {k: 1000 * statistics.median(v[2:]) for k, v in parts.items()}
 
 
+def rollout_chunk_ms(policy, pre, obs: dict, chunks: int, encode_every_state: bool) -> tuple[float, float]:
+    """Milliseconds per chunk of a batch-1 rollout, medians over `chunks` chunks: the preprocessor over the
+    chunk's `n_action_steps` observations (a new hand state each) and `select_action` over them (the call
+    that samples the chunk included). `encode_every_state` computes each deferred state right after the
+    preprocessor, as every state was encoded before deferral."""
+    per_chunk = policy.config.n_action_steps
+    pre_ms, select_ms = [], []
+    policy.reset()
+    with torch.no_grad():
+        for step in range((chunks + 1) * per_chunk):
+            observation = dict(obs)
+            observation["observation.state"] = obs["observation.state"].clone()
+            observation["observation.state"][6:] += 1e-3 * (step % 50)
+            t0 = time.perf_counter()
+            batch = pre(observation)
+            if encode_every_state:
+                batch["observation.state"] = batch["observation.state"].clone()
+            t1 = time.perf_counter()
+            policy.select_action(batch)
+            t2 = time.perf_counter()
+            if step % per_chunk == 0:
+                pre_ms.append(0.0)
+                select_ms.append(0.0)
+            pre_ms[-1] += 1000 * (t1 - t0)
+            select_ms[-1] += 1000 * (t2 - t1)
+    return statistics.median(pre_ms[1:]), statistics.median(select_ms[1:])
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--galr", help="GaLR checkpoint (default: untrained default architecture)")
@@ -241,6 +271,10 @@ def main() -> None:
         print("opfa breakdown (ms):", {k: round(v, 2) for k, v in breakdown.items()})
         float16_error = chunk_difference(policy, built[float32][0], pre, obs)
         print(f"float16 vs float32 weights, largest action difference: {float16_error:.2e}")
+        deferred_pre, deferred_select = rollout_chunk_ms(policy, pre, obs, args.repeats, False)
+        every_pre, every_select = rollout_chunk_ms(policy, pre, obs, args.repeats, True)
+        print(f"per chunk: preprocessor {deferred_pre:.2f} ms, select_action {deferred_select:.2f} ms "
+              f"(encoding every state: {every_pre:.2f} ms, {every_select:.2f} ms)")  # fmt: skip
 
     by = {r["variant"]: r for r in rows}
     opfa, raw, stock = (
@@ -276,6 +310,13 @@ def main() -> None:
         "float16_vs_float32_weights_max_action_difference": float16_error,
         "fast_vs_plain_sampling_select_action_speedup": by[plain]["select_action_ms"]
         / opfa["select_action_ms"],
+        "preprocessor_ms_per_chunk": deferred_pre,
+        "select_action_ms_per_chunk": deferred_select,
+        "preprocessor_vs_select_action_per_chunk": deferred_pre / deferred_select,
+        "encoding_every_state": {
+            "preprocessor_ms_per_chunk": every_pre,
+            "select_action_ms_per_chunk": every_select,
+        },
     }
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / "policy.json").write_text(json.dumps(result, indent=2))

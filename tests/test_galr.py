@@ -71,18 +71,45 @@ def test_semantic_labels_reach_the_superpoint_values_only_as_features(target):
         assert torch.allclose(out[0, 0], out[0, 1])
 
 
-def test_checkpoint_config_without_semantic_target_loads_as_attention(tmp_path):
-    galr = tiny_galr(semantic_target="attention")
+def test_checkpoint_config_from_before_semantic_target_and_stem_neighbors_loads_as_it_was(tmp_path):
+    galr = tiny_galr(semantic_target="attention", stem_neighbors="radius")
     galr.save_pretrained(tmp_path)
     config = json.loads((tmp_path / "config.json").read_text())
-    del config["semantic_target"]  # as written before the field existed
+    del config["semantic_target"], config["stem_neighbors"]  # as written before the fields existed
     (tmp_path / "config.json").write_text(json.dumps(config))
     loaded = Galr.from_pretrained(tmp_path).eval()
-    assert loaded.config.semantic_target == "attention"
+    assert (loaded.config.semantic_target, loaded.config.stem_neighbors) == ("attention", "radius")
     q = _joints("leap", 2)
     assert torch.equal(galr.encode_joints("leap", q), loaded.encode_joints("leap", q))
     with pytest.raises(ValueError, match="semantic_target must be"):
         tiny_galr(semantic_target="values")
+    with pytest.raises(ValueError, match="stem_neighbors must be"):
+        tiny_galr(stem_neighbors="knn")
+
+
+@pytest.mark.parametrize("hand", HANDS)
+def test_link_neighbourhoods_found_once_are_the_radius_neighbourhoods_on_the_link_in_every_pose(hand):
+    """The stem's `link` neighbourhoods, found once in the links' frames, are in any pose exactly the dense
+    points within the radius on the query's own link."""
+    galr = tiny_galr()
+    model, index = galr.hand(hand)
+    c = galr.config
+    radius, limit = c.radius_factor * c.grid, c.neighbor_limits[0]
+    samples = model.surface_samples(c.n_points, c.sample_seed)
+    points = model.point_cloud(_joints(hand, 3, seed=2), c.n_points, c.sample_seed).points
+    checked = 0
+    for cloud in points:
+        distances = torch.cdist(cloud[index.level1], cloud)
+        same_link = samples.link_index[index.level1].unsqueeze(1) == samples.link_index.unsqueeze(0)
+        for row, found in enumerate(index.stem):
+            within = ((distances[row] <= radius) & same_link[row]).nonzero().flatten()
+            found = found[found < c.n_points]
+            if len(within) <= limit:  # else the nearest `limit` of them
+                assert set(found.tolist()) == set(within.tolist())
+                checked += 1
+            else:
+                assert len(found) == limit and set(found.tolist()) <= set(within.tolist())
+    assert checked > 0.5 * len(points) * len(index.stem)
 
 
 def test_kernel_points_deterministic_and_saved(tmp_path):

@@ -538,6 +538,42 @@ def test_interleaved_pipelines_of_one_checkpoint_never_mix_hands(data, tmp_path)
     assert all(torch.equal(decoded[i], expected[hand]) for i, hand in enumerate(hands))
 
 
+def test_a_rollout_encodes_only_the_states_the_policy_reads_and_acts_as_when_all_are_encoded(data):
+    """The preprocessor defers the GaLR encode of the hand state: over 3 chunks only the `n_obs_steps`
+    states before each chunk are encoded, and the actions equal those of encoding every state at once."""
+    policy, pre, post, _ = make_policy(data, "merged")
+    galr = next(step for step in pre.steps if isinstance(step, OpfaEncodeJointsStep)).galr
+    encoded = []
+    galr.encoder.register_forward_hook(lambda module, args, out: encoded.append(len(out)))
+    cloud, steps = torch.zeros(32 * 3), 3 * policy.config.n_action_steps
+    observations = []
+    for t in range(steps):
+        observation = native_observation("leap", cloud)
+        observation["observation.state"][6:] += 0.02 * t  # a new hand state every step
+        observations.append(observation)
+
+    def run(encode_every_state: bool) -> tuple[torch.Tensor, int]:
+        policy.reset()
+        encoded.clear()
+        torch.manual_seed(0)
+        actions = []
+        with torch.no_grad():
+            for observation in observations:
+                batch = pre(dict(observation))
+                if encode_every_state:
+                    batch["observation.state"] = batch["observation.state"].clone()  # computes it now
+                actions.append(post(policy.select_action(batch)))
+        return torch.cat(actions), len(encoded)
+
+    deferred, deferred_encodes = run(encode_every_state=False)
+    every, every_encodes = run(encode_every_state=True)
+    chunk_starts = range(0, steps, policy.config.n_action_steps)
+    read = {t for s in chunk_starts for t in range(max(0, s - policy.config.n_obs_steps + 1), s + 1)}
+    assert every_encodes == steps
+    assert deferred_encodes == len(read) < steps
+    assert torch.equal(deferred, every)
+
+
 def test_hub_push_and_pull_through_lerobot(data, tmp_path, monkeypatch):
     """`push_to_hub` with the Hub replaced by a folder: only what LeRobot uploads must suffice."""
     import huggingface_hub

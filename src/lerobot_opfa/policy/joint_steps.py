@@ -33,6 +33,7 @@ from lerobot_opfa.hands.model import HandModel
 from lerobot_opfa.hands.registry import load_hand, load_spec
 from lerobot_opfa.hands.universal import UNIVERSAL_JOINT_NAMES
 from lerobot_opfa.policy.action_spaces import ACTION_SPACES, ActionSpace
+from lerobot_opfa.policy.deferred import defer
 
 _ENCODERS: dict[str, weakref.WeakValueDictionary[int, OpfaEncodeJointsStep]] = {}
 """link id -> the live preprocessor steps that have processed a batch (their postprocessor partners read
@@ -174,9 +175,16 @@ class OpfaEncodeJointsStep(_HandSpace, ProcessorStep):
             index = self._hand_index(hand) if hand is not None else self._native_index(state.shape[-1])
             ids = torch.full((len(state),), index, dtype=torch.long, device=state.device)
             convert = self._from_native
-        obs[OBS_STATE] = convert(state, ids)
         if isinstance(action, torch.Tensor):
+            obs[OBS_STATE] = convert(state, ids)
             new[TransitionKey.ACTION] = convert(action.float(), ids)
+        elif self.space.uses_galr:  # inference: encoded only if the policy reads this state (deferred.py)
+            if convert == self._from_native:
+                self._native_joints(state, int(ids[0]))  # a wrong width is an error now, not at the chunk
+            width = self.wrist_dim + self.space.hand_width(self.latent_dim, self.embodiment_joints)
+            obs[OBS_STATE] = defer(lambda: convert(state, ids), state, width)
+        else:
+            obs[OBS_STATE] = convert(state, ids)
         obs[OBS_EMBODIMENT] = ids
         self.last_ids = ids
         _ENCODERS.setdefault(self.link, weakref.WeakValueDictionary())[id(self)] = self
@@ -204,15 +212,20 @@ class OpfaEncodeJointsStep(_HandSpace, ProcessorStep):
 
     def _from_native(self, x: torch.Tensor, ids: torch.Tensor) -> torch.Tensor:
         index = int(ids[0])
+        q = self._native_joints(x, index)
+        return torch.cat([x[..., : self.wrist_dim], self.space.from_joints(self, index, q)], dim=-1)
+
+    def _native_joints(self, x: torch.Tensor, index: int) -> torch.Tensor:
+        """The joints of wrist + joints `x` of hand `index`, in its spec's order."""
         hand = self.model(index)
-        wrist, q = x[..., : self.wrist_dim], x[..., self.wrist_dim :]
+        q = x[..., self.wrist_dim :]
         if q.shape[-1] != hand.dof:
             raise ValueError(
                 f"state/action width {x.shape[-1]} != wrist {self.wrist_dim} + {hand.dof} joints"
             )
         if self.embodiments[index] == self.hand and self.native_joint_names:
             q = q[..., self._native_order]
-        return torch.cat([wrist, self.space.from_joints(self, index, q)], dim=-1)
+        return q
 
     # --- merged layout: wrist + universal joints [+ cached z] ----------------------------------------
     def _from_universal(self, x: torch.Tensor, ids: torch.Tensor) -> torch.Tensor:

@@ -29,6 +29,7 @@ from lerobot.utils.constants import ACTION, OBS_STATE
 
 from lerobot_opfa.datasets.statistics import pool
 from lerobot_opfa.features import OBS_EMBODIMENT
+from lerobot_opfa.policy.deferred import DeferredTensor
 from lerobot_opfa.policy.joint_steps import embodiment_ids
 
 logger = logging.getLogger(__name__)
@@ -99,8 +100,11 @@ class OpfaNormalizeStep(_EmbodimentAffine, ProcessorStep):
         obs = dict(new[TransitionKey.OBSERVATION])
         ids = obs[OBS_EMBODIMENT]
         if OBS_STATE in self.keys:
-            self._check_state(obs[OBS_STATE], ids)
-            obs[OBS_STATE] = self._normalize(OBS_STATE, obs[OBS_STATE], ids)
+            state = obs[OBS_STATE]
+            if isinstance(state, DeferredTensor):  # checked and normalised when the policy reads it
+                obs[OBS_STATE] = state.then(lambda value: self._checked_state(value, ids))
+            else:
+                obs[OBS_STATE] = self._checked_state(state, ids)
         action = new.get(TransitionKey.ACTION)
         if ACTION in self.keys and isinstance(action, torch.Tensor):
             new[TransitionKey.ACTION] = self._normalize(ACTION, action, ids)
@@ -109,6 +113,10 @@ class OpfaNormalizeStep(_EmbodimentAffine, ProcessorStep):
 
     def _normalize(self, key: str, x: torch.Tensor, ids: torch.Tensor) -> torch.Tensor:
         return (x - self._table(key, "shift", x, ids)) / self._table(key, "scale", x, ids)
+
+    def _checked_state(self, state: torch.Tensor, ids: torch.Tensor) -> torch.Tensor:
+        self._check_state(state, ids)
+        return self._normalize(OBS_STATE, state, ids)
 
     def _check_state(self, state: torch.Tensor, ids: torch.Tensor) -> None:
         bad = ~state.isfinite()
