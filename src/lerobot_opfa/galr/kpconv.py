@@ -9,7 +9,7 @@ import math
 import torch
 from torch import nn
 
-from lerobot_opfa.galr.neighbors import gather_neighbors
+from lerobot_opfa.galr.neighbors import gather_neighbors, max_pool_neighbors
 
 KERNEL_SHELL_RADIUS = 0.66
 
@@ -93,7 +93,7 @@ class ResidualBlock(nn.Module):
         x = self.conv_norm(self.conv(queries, supports, self.reduce(features), neighbors))
         x = self.expand(x)
         if self.strided:
-            shortcut = gather_neighbors(features, neighbors, shadow=-1e6).max(dim=2).values
+            shortcut = max_pool_neighbors(features, neighbors)
         else:
             shortcut = features
         if self.shortcut is not None:
