@@ -123,7 +123,7 @@ def main() -> None:
     fig.tight_layout()
     fig.savefig(RESULTS / "galr.png", dpi=110)
     slowdown = result["encoder_slowdown_vs_pointnet"]
-    print(f"GaLR encoder is x{slowdown:.1f} slower than PointNet; wrote {RESULTS}/galr.*")
+    print(f"GaLR encoder time / PointNet encoder time: {slowdown:.2f}; wrote {RESULTS}/galr.*")
 
 
 if __name__ == "__main__":
