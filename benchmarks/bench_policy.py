@@ -111,12 +111,14 @@ def observation(dataset, hand: str, latent: bool) -> dict:
 
 
 def chunk_times(policy, pre, post, obs: dict) -> tuple[float, float, float]:
-    """Seconds of the preprocessor (opfa: GaLR encode of the hand state), `select_action` and the
+    """Seconds of the preprocessor (opfa: GaLR encode of the hand state, computed here although the
+    preprocessor defers it, so that `select_action` times the policy alone), `select_action` and the
     postprocessor (opfa: GaLR decode) for a call that samples a new chunk (batch 1)."""
     policy.reset()
     with torch.no_grad():
         t0 = time.perf_counter()
         batch = pre(dict(obs))
+        batch["observation.state"] = batch["observation.state"].clone()
         t1 = time.perf_counter()
         action = policy.select_action(batch)
         t2 = time.perf_counter()

@@ -16,7 +16,7 @@ if TYPE_CHECKING:
     from lerobot_opfa.galr.model import Galr
 
 PACKAGED = {
-    "default": ("galr_default", "11 built-in hands; pretrained 55 CPU minutes; 3.81 deg mean joint RMSE"),
+    "default": ("galr_default", "11 built-in hands; pretrained 55 CPU minutes; 0.83 deg mean joint RMSE"),
     "long": ("galr_long", "11 built-in hands; pretrained 135 CPU minutes; 1.09 deg mean joint RMSE"),
 }
 """Name -> (folder under `checkpoints/`, what it is); errors from benchmarks/results/galr_*_eval.json."""

@@ -23,6 +23,7 @@ from lerobot_opfa.hands.spec import HandSpec, HandSpecError
 from lerobot_opfa.hands.universal import UNIVERSAL_INDEX, UNIVERSAL_JOINTS
 
 DEFAULT_MIN_POINTS_PER_LINK = 8
+POSING_CHUNK_BYTES = 1 << 20
 
 
 @dataclass(frozen=True)
@@ -284,13 +285,18 @@ class HandModel:
         """Surface cloud of the hand at each configuration: points (B, N, 3), labels (B, N, 2)."""
         samples = self.surface_samples(n_points, seed)
         poses = self.forward_kinematics(q)[..., :3, :].flatten(2)  # (B, L, 12)
+        weights = samples.posing_weights
         points = poses.new_empty(len(poses), 3 * len(samples.local_points))
-        start = 0
-        for link, weight in enumerate(samples.posing_weights):
-            # Each link's product is written into its block of columns (BLAS writes strided blocks), so
-            # no per-link results are concatenated: a third of the time beyond FK for a 3-link gripper.
-            torch.matmul(poses[:, link], weight, out=points[:, start : start + weight.shape[1]])
-            start += weight.shape[1]
+        # Rows in chunks whose per-link products stay under 1 MB: larger temporaries go back to the OS
+        # when freed and fault their pages in again on every call (up to 5x slower for a 3-link gripper).
+        rows = max(1, POSING_CHUNK_BYTES // (poses.element_size() * max(w.shape[1] for w in weights)))
+        for start in range(0, len(poses), rows):
+            chunk = poses[start : start + rows]
+            torch.cat(
+                [chunk[:, link] @ w for link, w in enumerate(weights)],
+                dim=1,
+                out=points[start : start + rows],
+            )
         points = points.view(len(poses), -1, 3)
         labels = samples.labels.expand(points.shape[0], -1, -1)
         return HandCloud(points, labels, q.to(self.device, self.dtype))
