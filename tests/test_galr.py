@@ -87,6 +87,21 @@ def test_checkpoint_config_from_before_semantic_target_and_stem_neighbors_loads_
         tiny_galr(stem_neighbors="knn")
 
 
+def test_a_galr_saved_by_an_earlier_version_encodes_as_it_did():
+    """A tiny KPConv GaLR written by `tests/data/galr_v1/make.py` before the encoder's speed work (its
+    stem searched, its config without `stem_neighbors`) gives the latents it gave then."""
+    from safetensors.torch import load_file
+
+    folder = Path(__file__).parent / "data" / "galr_v1"
+    expected = load_file(folder / "latents.safetensors")
+    galr = Galr.from_pretrained(folder / "galr").eval()
+    assert galr.config.stem_neighbors == "radius"
+    for hand in HANDS:
+        with torch.no_grad():
+            latents = galr.encode_joints(hand, expected[f"{hand}/joints"])
+        assert torch.allclose(latents, expected[f"{hand}/latents"], atol=1e-5), hand
+
+
 @pytest.mark.parametrize("hand", HANDS)
 def test_link_neighbourhoods_found_once_are_the_radius_neighbourhoods_on_the_link_in_every_pose(hand):
     """The stem's `link` neighbourhoods, found once in the links' frames, are in any pose exactly the dense
