@@ -87,6 +87,11 @@ class GalrConfig:
             )
 
     @property
+    def radii(self) -> tuple[float, float]:
+        """Neighbourhood radii (metres) at level 1 (the stem's too) and at the superpoints."""
+        return self.radius_factor * self.grid, 2 * self.radius_factor * self.grid
+
+    @property
     def hand_names(self) -> list[str]:
         return [h["name"] for h in self.hands]
 
@@ -106,7 +111,7 @@ class KPConvTransformerEncoder(nn.Module):
     def __init__(self, config: GalrConfig):
         super().__init__()
         dl1, dl2 = config.grid, 2 * config.grid
-        r1, r2 = config.radius_factor * dl1, config.radius_factor * dl2
+        r1, r2 = config.radii
         s1, s2 = config.sigma_factor * dl1, config.sigma_factor * dl2
         c1, c2, c3 = config.widths
         self.radii, self.limits = (r1, r1, r2, r2), config.neighbor_limits
@@ -203,9 +208,14 @@ class Galr(nn.Module, PyTorchModelHubMixin, library_name="lerobot-opfa", tags=["
                     f"{model.spec.path} has a different hash); retrain or use the original files"
                 )
             c = self.config
-            stem_radius, stem_limit = c.radius_factor * c.grid, c.neighbor_limits[0]
             index = pyramid_index(
-                model, c.n_points, c.n_level1, c.n_superpoints, c.sample_seed, stem_radius, stem_limit
+                model,
+                c.n_points,
+                c.n_level1,
+                c.n_superpoints,
+                c.sample_seed,
+                c.radii[0],
+                c.neighbor_limits[0],
             )
             self._hands[key] = (model, index.to(device))
         return self._hands[key]

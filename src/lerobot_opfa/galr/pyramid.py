@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from lerobot_opfa.galr.neighbors import nearest_within
 from lerobot_opfa.hands.geometry import allocate_points
 from lerobot_opfa.hands.model import HandModel
 
@@ -61,10 +62,7 @@ def link_neighbors(
     and are found once per hand, in the links' own frames: the stem's neighbourhoods need no search."""
     distances = torch.cdist(local[queries], local)
     distances[link_index[queries].unsqueeze(1) != link_index.unsqueeze(0)] = torch.inf
-    k = min(limit, len(local))
-    nearest, index = distances.topk(k, dim=-1, largest=False)
-    index = index.masked_fill(nearest > radius, len(local))
-    return torch.cat([index, index.new_full((len(queries), limit - k), len(local))], dim=-1)
+    return nearest_within(distances, radius, limit)
 
 
 def pyramid_index(
@@ -72,9 +70,9 @@ def pyramid_index(
     n_points: int,
     n_level1: int,
     n_superpoints: int,
-    seed: int = 0,
-    stem_radius: float = 0.02,
-    stem_limit: int = 40,
+    seed: int,
+    stem_radius: float,
+    stem_limit: int,
 ) -> PyramidIndex:
     if not n_points >= n_level1 >= n_superpoints >= len(hand.link_names):
         raise ValueError(
