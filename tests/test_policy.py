@@ -32,7 +32,7 @@ from lerobot_opfa.datasets.layout import JointNameError, read_layout
 from lerobot_opfa.datasets.merge import merge_datasets
 from lerobot_opfa.datasets.statistics import STATS_FILE
 from lerobot_opfa.datasets.synthetic import write_synthetic_dataset
-from lerobot_opfa.features import OBS_EMBODIMENT, OBS_POINTCLOUD
+from lerobot_opfa.features import OBS_EMBODIMENT, OBS_HAND, OBS_POINTCLOUD
 from lerobot_opfa.galr.model import Galr, GalrConfig, hand_record
 from lerobot_opfa.hands import load_hand
 from lerobot_opfa.policy import processor_opfa as processor_module
@@ -413,6 +413,14 @@ def test_constant_action_entries_come_out_constant_and_the_rest_round_trips(
     ids = transition[TransitionKey.OBSERVATION][OBS_EMBODIMENT]
     low, high = unnormalize.tables["action.low"][ids], unnormalize.tables["action.high"][ids]
     assert ((out >= low[:, None]) & (out <= high[:, None])).all(), "actions stay in their training range"
+
+
+def test_a_state_of_the_wrong_width_is_an_error_of_the_preprocessor_though_its_encode_is_deferred(data):
+    _, pre, _, _ = make_policy(data, "merged")
+    observation = native_observation("leap", torch.zeros(32 * 3)) | {OBS_HAND: "leap"}
+    observation["observation.state"] = observation["observation.state"][:-1]
+    with pytest.raises(ValueError, match=r"state/action width 21 != wrist 6 \+ 16 joints"):
+        pre(observation)
 
 
 def test_state_guard_warns_once_per_episode_and_refuses_nan(data, caplog):

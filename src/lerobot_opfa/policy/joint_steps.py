@@ -91,6 +91,11 @@ class _HandSpace:
         return None if self.galr is None else self.galr.config.latent_dim
 
     @cached_property
+    def policy_width(self) -> int:
+        """Width of a policy-space state or action: the wrist's entries, then the space's."""
+        return self.wrist_dim + self.space.hand_width(self.latent_dim, self.embodiment_joints)
+
+    @cached_property
     def hand_mask(self) -> torch.Tensor:
         return self.space.hand_mask(self.latent_dim, self.embodiment_joints)
 
@@ -173,16 +178,14 @@ class OpfaEncodeJointsStep(_HandSpace, ProcessorStep):
             convert = self._from_universal
         else:
             index = self._hand_index(hand) if hand is not None else self._native_index(state.shape[-1])
+            self._check_native_width(state, index)  # now, even when the state's encode is deferred
             ids = torch.full((len(state),), index, dtype=torch.long, device=state.device)
             convert = self._from_native
         if isinstance(action, torch.Tensor):
             obs[OBS_STATE] = convert(state, ids)
             new[TransitionKey.ACTION] = convert(action.float(), ids)
         elif self.space.uses_galr:  # inference: encoded only if the policy reads this state (deferred.py)
-            if convert == self._from_native:
-                self._native_joints(state, int(ids[0]))  # a wrong width is an error now, not at the chunk
-            width = self.wrist_dim + self.space.hand_width(self.latent_dim, self.embodiment_joints)
-            obs[OBS_STATE] = defer(lambda: convert(state, ids), state, width)
+            obs[OBS_STATE] = defer(lambda: convert(state, ids), state, self.policy_width)
         else:
             obs[OBS_STATE] = convert(state, ids)
         obs[OBS_EMBODIMENT] = ids
@@ -212,20 +215,16 @@ class OpfaEncodeJointsStep(_HandSpace, ProcessorStep):
 
     def _from_native(self, x: torch.Tensor, ids: torch.Tensor) -> torch.Tensor:
         index = int(ids[0])
-        q = self._native_joints(x, index)
-        return torch.cat([x[..., : self.wrist_dim], self.space.from_joints(self, index, q)], dim=-1)
-
-    def _native_joints(self, x: torch.Tensor, index: int) -> torch.Tensor:
-        """The joints of wrist + joints `x` of hand `index`, in its spec's order."""
-        hand = self.model(index)
+        self._check_native_width(x, index)
         q = x[..., self.wrist_dim :]
-        if q.shape[-1] != hand.dof:
-            raise ValueError(
-                f"state/action width {x.shape[-1]} != wrist {self.wrist_dim} + {hand.dof} joints"
-            )
         if self.embodiments[index] == self.hand and self.native_joint_names:
             q = q[..., self._native_order]
-        return q
+        return torch.cat([x[..., : self.wrist_dim], self.space.from_joints(self, index, q)], dim=-1)
+
+    def _check_native_width(self, x: torch.Tensor, index: int) -> None:
+        dof = self.model(index).dof
+        if x.shape[-1] != self.wrist_dim + dof:
+            raise ValueError(f"state/action width {x.shape[-1]} != wrist {self.wrist_dim} + {dof} joints")
 
     # --- merged layout: wrist + universal joints [+ cached z] ----------------------------------------
     def _from_universal(self, x: torch.Tensor, ids: torch.Tensor) -> torch.Tensor:
@@ -257,7 +256,7 @@ class OpfaEncodeJointsStep(_HandSpace, ProcessorStep):
         self.load_galr_state(state, "encoder.")
 
     def transform_features(self, features):
-        width = self.wrist_dim + self.space.hand_width(self.latent_dim, self.embodiment_joints)
+        width = self.policy_width
         for kind, key in ((PipelineFeatureType.OBSERVATION, OBS_STATE), (PipelineFeatureType.ACTION, ACTION)):
             if key in features.get(kind, {}):
                 features[kind][key] = PolicyFeature(type=features[kind][key].type, shape=(width,))
