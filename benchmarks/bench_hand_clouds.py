@@ -13,6 +13,7 @@ import argparse
 import json
 import platform
 import time
+from collections.abc import Callable
 from functools import partial
 from pathlib import Path
 
@@ -30,17 +31,20 @@ from lerobot_opfa.hands import builtin_hands, load_hand  # noqa: E402
 RESULTS = Path(__file__).parent / "results"
 
 
-def rate(call, q: torch.Tensor, repeats: int, rounds: int) -> float:
-    """Configurations per second of `call(q)` in its fastest of `rounds` rounds of `repeats` calls (the
-    least disturbed by other processes)."""
-    call(q[:2])  # FK caches, and the surface samples drawn once, as every later call reuses them
-    best = float("inf")
+def rates(calls: dict[str, Callable], q: torch.Tensor, repeats: int, rounds: int) -> dict[str, float]:
+    """Configurations per second of each `call(q)` in its fastest of `rounds` rounds of `repeats` calls.
+    The calls take turns round by round, so that a slow spell of the machine reaches all of them alike,
+    and the fastest round is the least disturbed."""
+    for call in calls.values():
+        call(q[:2])  # FK caches, and the surface samples drawn once, as every later call reuses them
+    best = dict.fromkeys(calls, float("inf"))
     for _ in range(rounds):
-        start = time.perf_counter()
-        for _ in range(repeats):
-            call(q)
-        best = min(best, time.perf_counter() - start)
-    return repeats * len(q) / best
+        for name, call in calls.items():
+            start = time.perf_counter()
+            for _ in range(repeats):
+                call(q)
+            best[name] = min(best[name], time.perf_counter() - start)
+    return {name: repeats * len(q) / seconds for name, seconds in best.items()}
 
 
 def naive(hand, q: torch.Tensor, n_points: int) -> float:
@@ -63,7 +67,7 @@ def main() -> None:
     parser.add_argument("--n-points", type=int, default=1024)
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument(
-        "--rounds", type=int, default=5, help="timed rounds of --repeats calls; the fastest counts"
+        "--rounds", type=int, default=20, help="timed rounds of --repeats calls; the fastest counts"
     )
     parser.add_argument("--naive-configs", type=int, default=32, help="configurations timed for the baseline")
     args = parser.parse_args()
@@ -73,8 +77,8 @@ def main() -> None:
     for name in names:
         hand = load_hand(name)
         q = hand.sample_joints(args.batch, torch.Generator().manual_seed(0))
-        fk = rate(hand.forward_kinematics, q, args.repeats, args.rounds)
-        fast = rate(partial(hand.point_cloud, n_points=args.n_points), q, args.repeats, args.rounds)
+        timed = {"fk": hand.forward_kinematics, "clouds": partial(hand.point_cloud, n_points=args.n_points)}
+        fk, fast = rates(timed, q, args.repeats, args.rounds).values()
         slow = naive(hand, q[: args.naive_configs], args.n_points)
         rows.append(
             {
@@ -101,7 +105,7 @@ def main() -> None:
             "n_points": args.n_points,
             "device": "cpu",
             "torch_threads": torch.get_num_threads(),
-            "timing": f"fastest of {args.rounds} rounds of {args.repeats} calls, FK and clouds alike",
+            "timing": f"fastest of {args.rounds} rounds of {args.repeats} calls, FK and clouds taking turns",
         },
         "machine": {
             "cpu": platform.processor() or platform.machine(),

@@ -85,6 +85,22 @@ def test_cloud_moves_with_pose_and_keeps_n(name):
     assert (cloud.points.abs() < 0.5).all(), "a hand fits in a metre-wide box around its wrist"
 
 
+def _posed_from_fk(hand: HandModel, q: torch.Tensor, n_points: int) -> torch.Tensor:
+    """Each surface point times its own link's pose: what a cloud is, computed the slow way."""
+    samples = hand.surface_samples(n_points)
+    poses = hand.forward_kinematics(q)[:, samples.link_index]  # (B, N, 4, 4)
+    return (poses[..., :3, :3] @ samples.local_points[..., None]).squeeze(-1) + poses[..., :3, 3]
+
+
+@pytest.mark.parametrize("name", BUILTIN_HANDS)
+def test_cloud_is_each_point_posed_by_its_link(name):
+    """Points on links no joint moves are posed once per batch: they must still be where FK puts them."""
+    hand = load_hand(name)
+    q = _random_states(hand, 8)
+    assert torch.allclose(hand.point_cloud(q, 256).points, _posed_from_fk(hand, q, 256), atol=1e-6)
+    assert hand.static_links & set(hand.link_names) == {hand.link_names[0]}, "the palm or gripper body"
+
+
 def test_sampled_states_within_limits():
     hand = load_hand("umi")
     q = hand.sample_joints(1000, torch.Generator().manual_seed(0))

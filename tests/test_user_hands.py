@@ -83,6 +83,20 @@ def test_fixed_wrist_joints_hold_in_simulation(user_shadow_spec):
         HandModel.from_spec(user_shadow_spec)
 
 
+def test_links_behind_held_joints_stay_put_and_only_they_can_be_the_base(user_shadow_spec):
+    """The palm sits behind the wrist joints the spec holds: it is static, so its points are posed once."""
+    hand = load_hand(user_shadow_spec)
+    assert {"robot0:palm", "robot0:forearm"} <= hand.static_links
+    assert "robot0:ffdistal" not in hand.static_links
+    cloud = hand.point_cloud(hand.sample_joints(4, torch.Generator().manual_seed(0)), 256).points
+    on_palm = hand.surface_samples(256).link_index == hand.link_names.index("robot0:palm")
+    assert torch.equal(cloud[:, on_palm], cloud[:1, on_palm].expand(4, -1, -1))
+    assert not torch.allclose(cloud[0, ~on_palm], cloud[1, ~on_palm])
+    _edit(user_shadow_spec, lambda raw: raw["base"].update(link="robot0:ffdistal"))
+    with pytest.raises(HandSpecError, match=r"'robot0:ffdistal' moves with the actuated joints"):
+        HandModel.from_spec(user_shadow_spec)
+
+
 def test_fixed_value_outside_the_joint_limits_is_an_error(user_shadow_spec):
     _edit(user_shadow_spec, lambda raw: raw["fixed"].update({"robot0:WRJ1": 2.0}))
     with pytest.raises(HandSpecError, match=r"field 'fixed.robot0:WRJ1': 2.0 is outside its limits"):

@@ -3,8 +3,8 @@
 Couplings and fixed joints are folded into one affine map from the actuated joints to every model joint,
 so FK of a batch is one matmul plus one pytorch-kinematics call; link poses are returned in the
 documented hand frame (the spec's `base`), whatever frame the vendor's file uses. Surface points are drawn
-once per link in the link's own frame; a cloud for a batch of poses is then one gathered rigid transform
-per point.
+once per link in the link's own frame; a cloud for a batch of poses is then one matrix product per link
+that joints move, and one posed copy of the links that none moves (a palm, a gripper body).
 """
 
 from __future__ import annotations
@@ -140,17 +140,28 @@ class HandModel:
         frame[:3, 3] = torch.tensor(base.xyz, dtype=torch.float64)
         if base.link is None:
             return frame
-        chain = self.model_file.chain.to(dtype=torch.float64)
-        rest = self._coupling_offset[None]  # actuated joints at 0, fixed joints at their values
-        moved = rest + 0.1 * self._coupling_matrix.sum(1)[None]
-        at_rest, at_moved = (chain.forward_kinematics(q)[base.link].get_matrix()[0] for q in (rest, moved))
-        if not torch.allclose(at_rest, at_moved, atol=1e-9):
+        if base.link not in self.static_links:
             raise HandSpecError(
                 self.spec.path,
                 "base.link",
                 f"'{base.link}' moves with the actuated joints; name the wrist or palm",
             )
-        return at_rest @ frame
+        chain = self.model_file.chain.to(dtype=torch.float64)
+        rest = self._coupling_offset[None]  # actuated joints at 0, fixed joints at their values
+        return chain.forward_kinematics(rest)[base.link].get_matrix()[0] @ frame
+
+    @cached_property
+    def static_links(self) -> frozenset[str]:
+        """Model links that no actuated joint moves: every joint between them and the root is fixed in the
+        file or held by the spec's `fixed`. Their pose, and so their surface points, is the same in every
+        configuration."""
+        chain = self.model_file.chain
+        moving = self._coupling_matrix.any(dim=1).tolist()  # per model joint
+        return frozenset(
+            chain.idx_to_frame[frame]
+            for frame, path in enumerate(chain.parents_indices)
+            if not any(joint >= 0 and moving[joint] for joint in chain.joint_indices[path].tolist())
+        )
 
     @classmethod
     def from_spec(cls, path: str | Path, **kwargs) -> HandModel:
@@ -287,13 +298,23 @@ class HandModel:
         poses = self.forward_kinematics(q)[..., :3, :].flatten(2)  # (B, L, 12)
         weights = samples.posing_weights
         points = poses.new_empty(len(poses), 3 * len(samples.local_points))
+        # A link no joint moves has the same points in every row: posed once and copied (2/3 of a gripper).
+        static = {
+            link: poses[:1, link] @ w
+            for link, (name, w) in enumerate(zip(self.link_names, weights, strict=True))
+            if name in self.static_links
+        }
         # Rows in chunks whose per-link products stay under 1 MB: larger temporaries go back to the OS
         # when freed and fault their pages in again on every call (up to 5x slower for a 3-link gripper).
-        rows = max(1, POSING_CHUNK_BYTES // (poses.element_size() * max(w.shape[1] for w in weights)))
+        widest = max((w.shape[1] for link, w in enumerate(weights) if link not in static), default=1)
+        rows = max(1, POSING_CHUNK_BYTES // (poses.element_size() * widest))
         for start in range(0, len(poses), rows):
             chunk = poses[start : start + rows]
             torch.cat(
-                [chunk[:, link] @ w for link, w in enumerate(weights)],
+                [
+                    static[link].expand(len(chunk), -1) if link in static else chunk[:, link] @ w
+                    for link, w in enumerate(weights)
+                ],
                 dim=1,
                 out=points[start : start + rows],
             )
