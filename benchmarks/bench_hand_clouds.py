@@ -78,7 +78,8 @@ def main() -> None:
         hand = load_hand(name)
         q = hand.sample_joints(args.batch, torch.Generator().manual_seed(0))
         timed = {"fk": hand.forward_kinematics, "clouds": partial(hand.point_cloud, n_points=args.n_points)}
-        fk, fast = rates(timed, q, args.repeats, args.rounds).values()
+        rate = rates(timed, q, args.repeats, args.rounds)
+        fk, fast = rate["fk"], rate["clouds"]
         slow = naive(hand, q[: args.naive_configs], args.n_points)
         rows.append(
             {

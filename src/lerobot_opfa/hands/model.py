@@ -298,7 +298,7 @@ class HandModel:
         poses = self.forward_kinematics(q)[..., :3, :].flatten(2)  # (B, L, 12)
         weights = samples.posing_weights
         points = poses.new_empty(len(poses), 3 * len(samples.local_points))
-        # A link no joint moves has the same points in every row: posed once and copied (2/3 of a gripper).
+        # A link no joint moves has the same points in every row: posed once and copied (28-66 % of points).
         static = {
             link: poses[:1, link] @ w
             for link, (name, w) in enumerate(zip(self.link_names, weights, strict=True))
