@@ -17,15 +17,16 @@ from pathlib import Path
 from tqdm import tqdm
 
 from lerobot_opfa.experiments.scales import DEMO_SCALE
+from lerobot_opfa.flags import positive_int
 
 
 def add_command(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser("demo", help="run the pipeline end to end on a small default")
     parser.add_argument("--output-dir", type=Path, default=Path("outputs/demo"))
-    parser.add_argument("--n-points", type=int, default=1024, help="points of the hand clouds drawn")
+    parser.add_argument("--n-points", type=positive_int, default=1024, help="points of the hand clouds drawn")
     parser.add_argument("--galr", default="long", help="GaLR checkpoint: packaged name, folder or Hub repo")
     parser.add_argument(
-        "--states", type=int, default=64, help="held-out states per hand for the GaLR round trip"
+        "--states", type=positive_int, default=64, help="held-out states per hand for the GaLR round trip"
     )
     parser.add_argument("--task", default="press_button")
     parser.add_argument("--hands", default="umi,inspire,xhand", help="the embodiments co-trained")

@@ -44,6 +44,7 @@ def train(argv: list[str]) -> None:
     2-core machine 2 threads train 1.4x faster than 1, but torch's OpenMP threads spin while they wait, so
     where other busy processes share the cores set OMP_NUM_THREADS=1 (2 threads there ran 10-20x
     slower). See benchmarks/bench_training.py."""
+    import draccus
     import torch
     from lerobot.scripts import lerobot_train
 
@@ -56,9 +57,35 @@ def train(argv: list[str]) -> None:
     make = _in_memory(lerobot_train.make_train_eval_datasets)
     with (
         mock.patch.object(lerobot_train, "make_train_eval_datasets", make),
+        mock.patch.object(draccus, "parse", _parse_showing_cause(draccus.parse)),
         mock.patch.object(sys, "argv", ["lerobot-opfa train", *argv]),
     ):
         lerobot_train.main()
+
+
+def _parse_showing_cause(parse):
+    """draccus.parse, raising a flag's real error (a config's `__post_init__` message) as a ValueError;
+    draccus itself prints only "Couldn't instantiate class OpfaConfig using the given arguments"."""
+    import draccus
+
+    @functools.wraps(parse)
+    def parse_with_cause(*args, **kwargs):
+        try:
+            return parse(*args, **{**kwargs, "exit_on_error": False})
+        except draccus.utils.DraccusException as err:
+            cause = err
+            while isinstance(cause, draccus.utils.DraccusException) and (
+                cause.__cause__ or cause.__context__
+            ):
+                cause = cause.__cause__ or cause.__context__
+            flag = ".".join(getattr(err, "field_path", ()) or ())
+            raise ValueError(f"--{flag}: {cause}" if flag else str(cause)) from None
+
+    return parse_with_cause
+
+
+def _cause(err: BaseException) -> BaseException | None:
+    return err.__cause__ or err.__context__
 
 
 def _reuse_freed_memory() -> None:

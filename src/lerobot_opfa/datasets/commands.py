@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from lerobot_opfa.flags import positive_int
+
 
 def add_commands(subparsers: argparse._SubParsersAction) -> None:
     dataset = subparsers.add_parser("dataset", help="cross-embodiment LeRobotDatasets").add_subparsers(
@@ -29,9 +31,9 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     synthetic = dataset.add_parser("synthetic", help="a small synthetic per-hand dataset (no simulator)")
     synthetic.add_argument("--hand", required=True)
     synthetic.add_argument("--output", type=Path, required=True)
-    synthetic.add_argument("--episodes", type=int, default=4)
-    synthetic.add_argument("--frames", type=int, default=50)
-    synthetic.add_argument("--n-points", type=int, default=256)
+    synthetic.add_argument("--episodes", type=positive_int, default=4)
+    synthetic.add_argument("--frames", type=positive_int, default=50)
+    synthetic.add_argument("--n-points", type=positive_int, default=256)
     synthetic.add_argument("--seed", type=int, default=0)
     synthetic.set_defaults(func=_synthetic)
 

@@ -4,14 +4,20 @@ at all (an interrupted merge leaves nothing behind under the output path)."""
 from __future__ import annotations
 
 import contextlib
+import glob
+import os
 import shutil
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
+
+if TYPE_CHECKING:
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
 
 def read_columns(root: Path | str, columns: list[str]) -> dict[str, np.ndarray]:
@@ -33,17 +39,19 @@ def read_columns(root: Path | str, columns: list[str]) -> dict[str, np.ndarray]:
 @contextlib.contextmanager
 def atomic_directory(output: Path | str, overwrite: bool = False) -> Iterator[Path]:
     """Yields a fresh sibling temp path to write into; on success it replaces `output` in one rename,
-    on any error it is deleted."""
+    on any error (an interrupt included) it is deleted. What a killed writer left beside `output` is
+    cleaned first (`clean_stale_siblings`)."""
     output = Path(output).resolve()
+    clean_stale_siblings(output)
     if output.exists() and not overwrite:
         raise FileExistsError(f"{output} exists; pass --overwrite (overwrite=True) to replace it")
     output.parent.mkdir(parents=True, exist_ok=True)
-    tag = uuid.uuid4().hex[:8]
-    partial = output.parent / f".{output.name}.partial-{tag}"
+    tag = f"{os.getpid()}-{uuid.uuid4().hex[:8]}"
+    partial = output.parent / f".{output.name}{PARTIAL}{tag}"
     try:
         yield partial
         if output.exists():
-            old = output.parent / f".{output.name}.old-{tag}"
+            old = output.parent / f".{output.name}{OLD}{tag}"
             output.rename(old)
             partial.rename(output)
             shutil.rmtree(old)
@@ -51,4 +59,56 @@ def atomic_directory(output: Path | str, overwrite: bool = False) -> Iterator[Pa
             partial.rename(output)
     finally:
         if partial.exists():
-            shutil.rmtree(partial)
+            shutil.rmtree(partial, ignore_errors=True)
+
+
+PARTIAL, OLD = ".partial-", ".old-"
+"""Infixes of the siblings `atomic_directory` writes (`.<name>.partial-<pid>-<hex>`, `.<name>.old-...`)."""
+
+
+def clean_stale_siblings(output: Path) -> None:
+    """Removes the partial folders beside `output` that no live process is writing (a killed writer's, or
+    one of a version that tagged them without its pid), and puts back an `output` that a writer killed
+    mid-replacement had moved aside."""
+    if not output.parent.is_dir():
+        return
+    for infix in (PARTIAL, OLD):
+        for sibling in output.parent.glob(f".{glob.escape(output.name)}{infix}*"):
+            if _writer_alive(sibling.name.rsplit(infix, 1)[1]):
+                continue
+            if infix == OLD and not output.exists():
+                sibling.rename(output)
+            else:
+                shutil.rmtree(sibling, ignore_errors=True)
+
+
+def _writer_alive(tag: str) -> bool:
+    pid, _, _ = tag.partition("-")
+    if not pid.isdigit() or int(pid) == os.getpid():
+        return False
+    try:
+        os.kill(int(pid), 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+@contextlib.contextmanager
+def new_dataset(output: Path | str, overwrite: bool = False, **create: Any) -> Iterator[LeRobotDataset]:
+    """A LeRobotDataset (`LeRobotDataset.create(**create)`) written under a partial folder that becomes
+    `output` when the block succeeds. On failure the dataset's writers are closed before the folder is
+    deleted: LeRobot's metadata flushes its episode buffer when it is collected, and would otherwise
+    recreate the deleted folder afterwards."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    with atomic_directory(output, overwrite) as partial:
+        dataset = LeRobotDataset.create(root=partial, **create)
+        try:
+            yield dataset
+            dataset.finalize()
+        except BaseException:
+            with contextlib.suppress(Exception):
+                dataset.finalize()
+            raise

@@ -13,11 +13,10 @@ from pathlib import Path
 
 import numpy as np
 from lerobot.datasets.dataset_metadata import LeRobotDatasetMetadata
-from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from lerobot.utils.constants import ACTION, OBS_STATE
 from tqdm import tqdm
 
-from lerobot_opfa.datasets.io import atomic_directory, read_columns
+from lerobot_opfa.datasets.io import new_dataset, read_columns
 from lerobot_opfa.datasets.layout import OPFA_META_FILE, latent_names, read_layout
 from lerobot_opfa.datasets.merge import BOOKKEEPING, NUMERIC
 from lerobot_opfa.hands.universal import UNIVERSAL_JOINT_NAMES
@@ -48,11 +47,12 @@ def latent_dataset(source: Path | str, output: Path | str, overwrite: bool = Fal
     }
     columns = read_columns(source, [OBS_STATE, ACTION, *extra, *BOOKKEEPING])
     tasks = {int(row.task_index): task for task, row in meta.tasks.iterrows()}
-    with atomic_directory(output, overwrite) as partial:
-        dataset = LeRobotDataset.create(
-            f"local/{Path(output).name}", meta.fps, features, root=partial, robot_type="opfa_latent",
-            use_videos=False,
-        )  # fmt: skip
+    create = dict(
+        repo_id=f"local/{Path(output).name}", fps=meta.fps, features=features, robot_type="opfa_latent",
+        use_videos=False,
+    )  # fmt: skip
+    with new_dataset(output, overwrite, **create) as dataset:
+        partial = dataset.root
         episodes = columns["episode_index"]
         for episode in tqdm(list(dict.fromkeys(episodes.tolist())), desc="latent dataset", unit="episode"):
             rows = np.flatnonzero(episodes == episode)

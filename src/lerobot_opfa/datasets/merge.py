@@ -17,11 +17,10 @@ from pathlib import Path
 import numpy as np
 import torch
 from lerobot.datasets.dataset_metadata import LeRobotDatasetMetadata
-from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from lerobot.utils.constants import ACTION, OBS_STATE
 from tqdm import tqdm
 
-from lerobot_opfa.datasets.io import atomic_directory, read_columns
+from lerobot_opfa.datasets.io import new_dataset, read_columns
 from lerobot_opfa.datasets.layout import OPFA_META_FILE, DatasetLayout, hand_entry, latent_names, read_layout
 from lerobot_opfa.datasets.statistics import column_statistics, noise_floor, raw_noise, write_statistics
 from lerobot_opfa.features import OBS_EMBODIMENT
@@ -120,10 +119,9 @@ def merge_datasets(
         **extra,
     }
     total = sum(i.meta.total_frames for i in opened)
-    with atomic_directory(output, overwrite) as partial:
-        merged = LeRobotDataset.create(
-            repo_id, fps, features, root=partial, robot_type="opfa_merged", use_videos=False
-        )
+    dataset = dict(repo_id=repo_id, fps=fps, features=features, robot_type="opfa_merged", use_videos=False)
+    with new_dataset(output, overwrite, **dataset) as merged:
+        partial = merged.root
         with tqdm(total=total, desc="merging", unit="frame") as progress:
             for source in opened:
                 _append(merged, source, embodiments, galr, len(wrist), list(extra), progress)

@@ -7,9 +7,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 
+from lerobot_opfa.datasets.io import new_dataset
 from lerobot_opfa.features import OBS_POINTCLOUD
 from lerobot_opfa.hands.registry import load_hand
 
@@ -27,7 +27,10 @@ def write_synthetic_dataset(
     joint_names: list[str] | None = None,
 ) -> Path:
     """Writes a dataset for `hand` under `root` (`robot_type` = the hand's name). `joint_names` overrides
-    the hand's joint names in the features (to make datasets that do not match their spec)."""
+    the hand's joint names in the features (to make datasets that do not match their spec). Written whole
+    or not at all."""
+    if min(episodes, frames, n_points) < 1:
+        raise ValueError(f"need at least 1 episode, frame and point, got {episodes}, {frames}, {n_points}")
     model = load_hand(hand)
     names = [*WRIST_NAMES, *(joint_names or model.joint_names)]
     features = {
@@ -37,7 +40,13 @@ def write_synthetic_dataset(
         OBS_ENV_STATE: {"dtype": "float32", "shape": (3,), "names": ["object_x", "object_y", "object_z"]},
     }
     repo_id = f"local/{Path(root).name}"
-    dataset = LeRobotDataset.create(repo_id, fps, features, root=root, robot_type=hand, use_videos=False)
+    create = dict(repo_id=repo_id, fps=fps, features=features, robot_type=hand, use_videos=False)
+    with new_dataset(root, **create) as dataset:
+        _write_episodes(dataset, model, episodes, frames, n_points, seed)
+    return Path(root)
+
+
+def _write_episodes(dataset, model, episodes: int, frames: int, n_points: int, seed: int) -> None:
     rng = np.random.default_rng(seed)
     lower, upper = model.lower.double().numpy(), model.upper.double().numpy()
     for _ in range(episodes):
@@ -63,5 +72,3 @@ def write_synthetic_dataset(
                 }
             )
         dataset.save_episode()
-    dataset.finalize()
-    return Path(root)

@@ -6,6 +6,8 @@ import argparse
 import logging
 from pathlib import Path
 
+from lerobot_opfa.flags import positive_int
+
 logger = logging.getLogger(__name__)
 
 
@@ -15,10 +17,10 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     )
     demos = sim.add_parser("demos", help="record scripted expert demos as a LeRobotDataset (v3)")
     _scene_args(demos)
-    demos.add_argument("--episodes", type=int, required=True)
+    demos.add_argument("--episodes", type=positive_int, required=True)
     demos.add_argument("--output-dir", type=Path, required=True)
     demos.add_argument("--repo-id", help="dataset repo id (default local/opfa_<task>_<hand>)")
-    demos.add_argument("--n-points", type=int, default=1024)
+    demos.add_argument("--n-points", type=positive_int, default=1024)
     demos.add_argument("--pointcloud-source", choices=["depth", "geometry"], default="depth")
     demos.add_argument("--depth-cameras", default="front", help="comma-separated: front, left, right")
     demos.add_argument("--overwrite", action="store_true", help="replace an existing --output-dir")

@@ -8,11 +8,11 @@ import logging
 from pathlib import Path
 
 import numpy as np
-from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
+from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 from tqdm import tqdm
 
-from lerobot_opfa.datasets.io import atomic_directory
+from lerobot_opfa.datasets.io import new_dataset
 from lerobot_opfa.datasets.layout import OPFA_META_FILE, hand_entry
 from lerobot_opfa.envs.env import OpfaSimEnv
 from lerobot_opfa.envs.experts import ScriptedExpert
@@ -101,8 +101,15 @@ def record_demos(
         depth_cameras=depth_cameras,
     )
     try:
-        with atomic_directory(output_dir, overwrite) as partial:
-            _record(env, episodes, partial, region_names, seed, repo_id)
+        create = dict(
+            repo_id=repo_id or _repo_id(env),
+            fps=env.metadata["render_fps"],
+            features=dataset_features(env),
+            robot_type=env.hand_model.name,
+            use_videos=False,
+        )
+        with new_dataset(output_dir, overwrite, **create) as dataset:
+            _record(env, episodes, dataset, region_names, seed)
     finally:
         env.close()
     return LeRobotDatasetMetadata(repo_id or _repo_id(env), root=output_dir)
@@ -112,16 +119,8 @@ def _repo_id(env: OpfaSimEnv) -> str:
     return f"local/opfa_{env.task.name}_{env.hand_model.name}"
 
 
-def _record(env: OpfaSimEnv, episodes: int, root: Path, region_names: list[str], seed: int, repo_id) -> None:
-    task = env.task.name
-    dataset = LeRobotDataset.create(
-        repo_id=repo_id or _repo_id(env),
-        fps=env.metadata["render_fps"],
-        features=dataset_features(env),
-        root=root,
-        robot_type=env.hand_model.name,
-        use_videos=False,
-    )
+def _record(env: OpfaSimEnv, episodes: int, dataset, region_names: list[str], seed: int) -> None:
+    task, root = env.task.name, dataset.root
     records, attempts = [], 0
     with tqdm(total=episodes, desc=f"demos {task}/{env.hand_model.name}") as bar:
         while len(records) < episodes and attempts < MAX_ATTEMPTS_PER_EPISODE * episodes:

@@ -27,6 +27,7 @@ from lerobot_opfa.experiments import protocols
 from lerobot_opfa.experiments.jobs import CONDITIONS, Workspace, galr_identity, source_commit, write_json
 from lerobot_opfa.experiments.report import summarize, write_report
 from lerobot_opfa.experiments.scales import SCALES, Scale, get_scale
+from lerobot_opfa.flags import non_negative_int, positive_float, positive_int
 
 TITLES = {
     "spatial": "Spatial generalisation: success in regions covered only by the other embodiments' demos",
@@ -59,11 +60,13 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     nine = experiment.add_parser("nine", help="nine embodiments, one region and eight demos each")
     nine.add_argument("--task", default="press_button")
     nine.add_argument("--hands", default=",".join(protocols.NINE_HANDS))
-    nine.add_argument("--demos-per-hand", type=int, default=8)
+    nine.add_argument("--demos-per-hand", type=positive_int, default=8)
     for parser in (spatial, objects, fewshot, nine):
         parser.add_argument("--scale", default="small", choices=list(SCALES))
         parser.add_argument(
-            "--epochs", type=float, help="train this many epochs instead of the scale's (named in the report)"
+            "--epochs",
+            type=positive_float,
+            help="train this many epochs instead of the scale's (named in the report)",
         )
         parser.add_argument("--output-dir", type=Path, help="work folder (default outputs/experiments/NAME)")
         parser.add_argument("--report-dir", type=Path, help="where the JSON/MD/PNG go (default: output dir)")
@@ -74,12 +77,12 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         parser.add_argument("--seed", type=int, default=0)
         parser.add_argument(
             "--workers",
-            type=int,
+            type=positive_int,
             default=1,
             help="policies trained at once (each gets CPUs / workers threads)",
         )
         parser.add_argument(
-            "--failure-episodes", type=int, default=20,
+            "--failure-episodes", type=non_negative_int, default=20,
             help="episodes per transfer cell rolled out again to tell wrist from hand failures (0: none)",
         )  # fmt: skip
         parser.set_defaults(func=run)

@@ -10,6 +10,7 @@ import dataclasses
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from lerobot_opfa.flags import non_negative_float, positive_float, positive_int
 from lerobot_opfa.galr import checkpoints
 
 if TYPE_CHECKING:
@@ -36,22 +37,27 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         help=f"fine-tune this trained GaLR on new hands instead of starting over ({CHECKPOINT_HELP})",
     )
     pre.add_argument(
-        "--anchor", type=float, default=1.0, help="with --init: weight of keeping its own hands' latents"
+        "--anchor",
+        type=non_negative_float,
+        default=1.0,
+        help="with --init: weight of keeping its own hands' latents",
     )
-    pre.add_argument("--steps", type=int, default=3000)
-    pre.add_argument("--batch-size", type=int, default=44)
+    pre.add_argument("--steps", type=positive_int, default=3000)
+    pre.add_argument("--batch-size", type=positive_int, default=44)
     pre.add_argument(
         "--shares",
         choices=("dof", "even"),
         help="batch shares per hand: by joint count (default), or equal (default with --init: a 1-joint "
         "gripper the checkpoint already knows to 0.1 deg keeps it only with its share of every batch)",
     )
-    pre.add_argument("--lr", type=float, default=1e-3)
+    pre.add_argument("--lr", type=positive_float, default=1e-3)
     pre.add_argument("--output-dir", type=Path, required=True)
     pre.add_argument("--resume", action="store_true")
-    pre.add_argument("--max-minutes", type=float, help="stop (annealed and saved) after this much wall time")
-    pre.add_argument("--validate-every", type=int, default=250)
-    pre.add_argument("--save-every", type=int, default=500)
+    pre.add_argument(
+        "--max-minutes", type=positive_float, help="stop (annealed and saved) after this much wall time"
+    )
+    pre.add_argument("--validate-every", type=positive_int, default=250)
+    pre.add_argument("--save-every", type=positive_int, default=500)
     pre.add_argument("--seed", type=int, default=0)
     pre.add_argument("--wandb", action="store_true", help="log scalars to Weights & Biases too")
     pre.add_argument("--push-to-hub", metavar="REPO", help="push the final checkpoint to this Hub repo")
@@ -68,7 +74,7 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     ev.add_argument(
         "--hands", default="all", help="'all' (the checkpoint's registry) or comma-separated names"
     )
-    ev.add_argument("--states", type=int, default=256, help="held-out states per hand")
+    ev.add_argument("--states", type=positive_int, default=256, help="held-out states per hand")
     ev.add_argument("--seed", type=int, default=1)
     ev.add_argument("--json", type=Path, required=True)
     ev.add_argument("--plot", type=Path, help="bar chart of the per-hand errors")
@@ -208,6 +214,7 @@ def _embed(args: argparse.Namespace) -> int:
     galr = checkpoints.load(args.checkpoint)
     hand = galr.hand(args.hand)[0]
     q = _array(args.joints, f"joints of '{hand.name}'", hand.dof, ", ".join(hand.joint_names))
+    hand.check_within_limits(q, str(args.joints))
     with torch.no_grad():
         z = galr.encode_joints(args.hand, q)
     np.save(args.out, z.cpu().numpy())
@@ -223,6 +230,9 @@ def _decode(args: argparse.Namespace) -> int:
     galr.hand(args.hand)  # an unknown hand is an error before anything runs
     dim = galr.config.latent_dim
     z = _array(args.latents, "latents", dim, f"{dim} entries from `galr embed` with this checkpoint")
+    if not z.isfinite().all():
+        rows = int((~z.isfinite()).any(1).sum())
+        raise ValueError(f"{args.latents}: {rows} of {len(z)} latents are not finite (NaN or inf)")
     with torch.no_grad():
         q = galr.decode(z, args.hand)
     np.save(args.out, q.cpu().numpy())

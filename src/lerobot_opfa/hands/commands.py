@@ -6,6 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
+from lerobot_opfa.flags import positive_int
 from lerobot_opfa.hands.registry import builtin_hands, hand_models_dir, load_spec
 
 
@@ -21,8 +22,8 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
 
     cloud = hands.add_parser("cloud", help="point clouds of random reachable states, saved as .npz")
     cloud.add_argument("hand", help="built-in name or path to a spec.yaml")
-    cloud.add_argument("--n-points", type=int, default=1024)
-    cloud.add_argument("--batch", type=int, default=16)
+    cloud.add_argument("--n-points", type=positive_int, default=1024)
+    cloud.add_argument("--batch", type=positive_int, default=16)
     cloud.add_argument("--seed", type=int, default=0)
     cloud.add_argument("--out", type=Path, required=True)
     cloud.set_defaults(func=_cloud)
@@ -31,7 +32,7 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     show.add_argument("hand")
     show.add_argument("--out", type=Path, required=True)
     show.add_argument("--joints", choices=["open", "grasp", "random"], default="open")
-    show.add_argument("--n-points", type=int, default=2048)
+    show.add_argument("--n-points", type=positive_int, default=2048)
     show.add_argument("--seed", type=int, default=0)
     show.set_defaults(func=_show)
 

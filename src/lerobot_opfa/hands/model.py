@@ -24,6 +24,9 @@ from lerobot_opfa.hands.universal import UNIVERSAL_INDEX, UNIVERSAL_JOINTS
 
 DEFAULT_MIN_POINTS_PER_LINK = 8
 POSING_CHUNK_BYTES = 1 << 20
+LIMIT_TOLERANCE = 0.05
+"""How far past a joint limit a recorded value may lie, as a share of the joint's range (a simulator's
+or a servo's overshoot), before it is refused as a wrong unit or column."""
 
 
 @dataclass(frozen=True)
@@ -254,6 +257,32 @@ class HandModel:
             raise ValueError(
                 f"hand '{self.name}' expects joints of shape (B, {self.dof}) {self.joint_names}, "
                 f"got {tuple(q.shape)}"
+            )
+
+    def check_within_limits(self, q: torch.Tensor, source: str) -> None:
+        """Refuses joint values (B, dof) from `source` that are not finite or lie beyond the model's limits
+        by more than `LIMIT_TOLERANCE` of the joint's range (a recording in other units, or the wrong
+        columns): the GaLR would encode them without a word, into latents no policy should learn."""
+        self._check_joints(q)
+        q = q.detach().to("cpu", torch.float64)
+        bad = ~q.isfinite()
+        if bad.any():
+            joint = self.joint_names[int(bad.any(0).nonzero()[0])]
+            raise ValueError(
+                f"{source}: joint values of hand '{self.name}' are not finite (NaN or inf) in "
+                f"{int(bad.any(1).sum())} of {len(q)} frames, first in joint '{joint}'"
+            )
+        lower, upper = self._lower, self._upper
+        slack = LIMIT_TOLERANCE * (upper - lower)
+        beyond = (lower - slack - q).maximum(q - upper - slack)
+        outside = beyond > 0
+        if outside.any():
+            j = int(beyond.max(0).values.argmax())
+            worst = q[beyond[:, j].argmax(), j]
+            raise ValueError(
+                f"{source}: joint '{self.joint_names[j]}' of hand '{self.name}' is outside its limits "
+                f"[{lower[j]:.4g}, {upper[j]:.4g}] in {int(outside[:, j].sum())} of {len(q)} frames (worst "
+                f"{worst:.4g}); check the joints' units and order (`lerobot-opfa hands list`)"
             )
 
     # --- kinematics ---------------------------------------------------------------------------------

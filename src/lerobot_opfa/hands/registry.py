@@ -6,7 +6,7 @@ from functools import cache
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from lerobot_opfa.hands.spec import HandSpec
+from lerobot_opfa.hands.spec import HandSpec, HandSpecError
 from lerobot_opfa.resources import resource_dir
 
 if TYPE_CHECKING:
@@ -45,7 +45,22 @@ def hand_ref(spec: HandSpec) -> str:
 
 
 def load_spec(hand: str | Path) -> HandSpec:
-    return HandSpec.load(resolve_spec_path(hand))
+    """The spec of a built-in name or a spec path; a user spec that takes a built-in's name must be that
+    built-in (same sha256), or datasets and GaLR checkpoints could not tell the two apart."""
+    spec = HandSpec.load(resolve_spec_path(hand))
+    builtin = builtin_hands().get(spec.name)
+    if (
+        builtin is not None
+        and builtin.resolve() != spec.path
+        and HandSpec.load(builtin).sha256 != spec.sha256
+    ):
+        raise HandSpecError(
+            spec.path,
+            "name",
+            f"'{spec.name}' is a built-in hand's name, but this spec or its model differs from the built-in "
+            f"({builtin}); give the hand a name of its own (e.g. 'my_{spec.name}')",
+        )
+    return spec
 
 
 @cache
@@ -58,5 +73,5 @@ def _load_hand_cached(spec_path: Path, device: str, modified: int) -> HandModel:
 def load_hand(hand: str | Path, device: str = "cpu") -> HandModel:
     """A `HandModel` for a built-in name or a spec path; parsed models are cached per process (until the
     spec file changes)."""
-    path = resolve_spec_path(hand).resolve()
+    path = load_spec(hand).path
     return _load_hand_cached(path, str(device), path.stat().st_mtime_ns)

@@ -9,13 +9,13 @@ open and grasp poses.
 
 from __future__ import annotations
 
-import argparse
 import sys
 
 import mujoco
 import numpy as np
 import torch
 
+from lerobot_opfa.flags import OneLineParser, positive_int
 from lerobot_opfa.hands.model import HandModel
 from lerobot_opfa.hands.mujoco_model import hand_mjspec
 from lerobot_opfa.hands.plot import plot_clouds
@@ -141,10 +141,10 @@ def frame_report(hand: HandModel) -> tuple[list[str], list[str]]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = OneLineParser(description=__doc__.splitlines()[0])
     parser.add_argument("hand", help="built-in hand name or path to a spec.yaml")
     parser.add_argument("--png", help="draw the open and grasp poses to this PNG")
-    parser.add_argument("--n-points", type=int, default=2048)
+    parser.add_argument("--n-points", type=positive_int, default=2048)
     args = parser.parse_args(argv)
 
     hand = load_hand(args.hand)

@@ -44,13 +44,37 @@ the embodiment ids from the one there is)."""
 @dataclass
 class PointCloudBatchStep(ObservationProcessorStep):
     """Adds the batch dimension to an unbatched `observation.pointcloud` (LeRobot's batch step only
-    knows state, environment state and images)."""
+    knows state, environment state and images), after checking that it is finite and has the trained
+    number of points: the point encoder would turn either into actions without a word."""
+
+    n_points: int = 0
+    """Points per cloud the policy was trained on (0: not recorded, a checkpoint saved before)."""
 
     def observation(self, observation: dict[str, Any]) -> dict[str, Any]:
         cloud = observation.get(OBS_POINTCLOUD)
-        if isinstance(cloud, torch.Tensor) and cloud.dim() == 1:
-            observation[OBS_POINTCLOUD] = cloud.unsqueeze(0)
+        if isinstance(cloud, torch.Tensor):
+            self._check(cloud)
+            if cloud.dim() == 1:
+                observation[OBS_POINTCLOUD] = cloud.unsqueeze(0)
         return observation
+
+    def _check(self, cloud: torch.Tensor) -> None:
+        if self.n_points and cloud.shape[-1] != 3 * self.n_points:
+            raise ValueError(
+                f"{OBS_POINTCLOUD} holds {cloud.shape[-1] / 3:g} points ({cloud.shape[-1]} values); this "
+                f"policy was trained on {self.n_points} points: give it clouds of that size (the env's "
+                f"`n_points`)"
+            )
+        bad = ~cloud.isfinite()
+        if bad.any():
+            point = int(bad.reshape(-1, cloud.shape[-1]).any(0).nonzero()[0]) // 3
+            raise ValueError(
+                f"{OBS_POINTCLOUD} is not finite (NaN or inf) at point {point} (and {int(bad.sum())} values "
+                "in all): check the camera's depth and the cloud's crop"
+            )
+
+    def get_config(self) -> dict[str, Any]:
+        return {"n_points": self.n_points}
 
     def transform_features(self, features):
         return features

@@ -244,7 +244,7 @@ def make_opfa_pre_post_processors(
         input_steps=[
             RenameObservationsProcessorStep(rename_map={}),
             AddBatchDimensionProcessorStep(),
-            PointCloudBatchStep(),
+            PointCloudBatchStep(n_points=config.n_points),
             DeviceProcessorStep(device=config.device),
             encoder,
             OpfaNormalizeStep(
