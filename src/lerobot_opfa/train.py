@@ -16,6 +16,7 @@ import os
 import platform
 import sys
 import time
+from pathlib import Path
 from unittest import mock
 
 HELP = (
@@ -48,6 +49,11 @@ def train(argv: list[str]) -> None:
     import torch
     from lerobot.scripts import lerobot_train
 
+    from lerobot_opfa.datasets.io import check_dataset_folder
+
+    root = next((a.split("=", 1)[1] for a in argv if a.startswith("--dataset.root=")), None)
+    if root is not None and Path(root).is_dir():
+        check_dataset_folder(root)
     if not any(a == "--num_workers" or a.startswith("--num_workers=") for a in argv):
         argv = [*argv, "--num_workers=0"]
     if "OMP_NUM_THREADS" not in os.environ:

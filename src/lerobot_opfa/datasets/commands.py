@@ -60,11 +60,10 @@ def _synthetic(args: argparse.Namespace) -> None:
 
 def _summary(root: Path) -> str:
     """'<root>: N episodes, M frames of <hands>' from the dataset's own metadata."""
-    import json
-
+    from lerobot_opfa.datasets.io import read_json
     from lerobot_opfa.features import OBS_EMBODIMENT
 
-    info = json.loads((Path(root) / "meta" / "info.json").read_text())
+    info = read_json(Path(root) / "meta" / "info.json")
     embodiment = info["features"].get(OBS_EMBODIMENT, {}).get("names") or [info.get("robot_type")]
     return (
         f"{root}: {info['total_episodes']} episodes, {info['total_frames']} frames of {', '.join(embodiment)}"

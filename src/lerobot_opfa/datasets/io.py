@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import glob
+import json
 import os
 import shutil
 import uuid
@@ -18,6 +19,24 @@ import pyarrow.parquet as pq
 
 if TYPE_CHECKING:
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+
+def read_json(path: Path | str) -> Any:
+    """A JSON file's content; a file that does not parse is an error naming it."""
+    try:
+        return json.loads(Path(path).read_text())
+    except json.JSONDecodeError as err:
+        raise ValueError(f"{path} is not valid JSON ({err}); restore it or record the data again") from None
+
+
+def check_dataset_folder(root: Path | str) -> None:
+    """A LeRobotDataset folder whose JSON metadata parse, checked before LeRobot reads it (its own error
+    would not name the file)."""
+    root = Path(root)
+    if not (root / "meta" / "info.json").is_file():
+        raise ValueError(f"{root}: not a LeRobotDataset folder (no meta/info.json)")
+    for path in sorted((root / "meta").glob("*.json")):
+        read_json(path)
 
 
 def read_columns(root: Path | str, columns: list[str]) -> dict[str, np.ndarray]:

@@ -16,7 +16,7 @@ from lerobot.datasets.dataset_metadata import LeRobotDatasetMetadata
 from lerobot.utils.constants import ACTION, OBS_STATE
 from tqdm import tqdm
 
-from lerobot_opfa.datasets.io import new_dataset, read_columns
+from lerobot_opfa.datasets.io import check_dataset_folder, new_dataset, read_columns
 from lerobot_opfa.datasets.layout import OPFA_META_FILE, latent_names, read_layout
 from lerobot_opfa.datasets.merge import BOOKKEEPING, NUMERIC
 from lerobot_opfa.hands.universal import UNIVERSAL_JOINT_NAMES
@@ -27,6 +27,7 @@ logger = logging.getLogger(__name__)
 def latent_dataset(source: Path | str, output: Path | str, overwrite: bool = False) -> Path:
     """Writes `output` (atomically): `source`'s frames with state/action = wrist + cached z."""
     source = Path(source).resolve()
+    check_dataset_folder(source)
     meta = LeRobotDatasetMetadata(f"local/{source.name}", root=source)
     layout = read_layout(meta.features, meta.robot_type, source)
     if layout.kind != "merged" or not layout.latent_dim:

@@ -12,12 +12,12 @@ the hand from the dataset alone.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from lerobot.utils.constants import ACTION, OBS_STATE
 
+from lerobot_opfa.datasets.io import read_json
 from lerobot_opfa.features import OBS_EMBODIMENT
 from lerobot_opfa.hands.registry import builtin_hands, hand_ref, load_spec
 from lerobot_opfa.hands.spec import HandSpec
@@ -121,7 +121,7 @@ def split_native_names(names: list[str], spec: HandSpec) -> tuple[list[str], lis
 def opfa_record(root: Path | str | None) -> dict:
     """What lerobot-opfa recorded about a dataset (empty for a dataset it did not write)."""
     meta = Path(root) / OPFA_META_FILE if root is not None else None
-    return json.loads(meta.read_text()) if meta is not None and meta.is_file() else {}
+    return read_json(meta) if meta is not None and meta.is_file() else {}
 
 
 def hand_entry(spec: HandSpec) -> dict[str, str]:

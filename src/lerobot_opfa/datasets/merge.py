@@ -20,7 +20,7 @@ from lerobot.datasets.dataset_metadata import LeRobotDatasetMetadata
 from lerobot.utils.constants import ACTION, OBS_STATE
 from tqdm import tqdm
 
-from lerobot_opfa.datasets.io import new_dataset, read_columns
+from lerobot_opfa.datasets.io import check_dataset_folder, new_dataset, read_columns
 from lerobot_opfa.datasets.layout import OPFA_META_FILE, DatasetLayout, hand_entry, latent_names, read_layout
 from lerobot_opfa.datasets.statistics import column_statistics, noise_floor, raw_noise, write_statistics
 from lerobot_opfa.features import OBS_EMBODIMENT
@@ -49,8 +49,7 @@ class _Input:
 
 
 def _open(root: Path, hands: list[str] | None) -> _Input:
-    if not (root / "meta" / "info.json").is_file():
-        raise ValueError(f"{root}: not a LeRobotDataset folder (no meta/info.json)")
+    check_dataset_folder(root)
     meta = LeRobotDatasetMetadata(f"local/{root.name}", root=root)
     layout = read_layout(meta.features, meta.robot_type, root, hands)
     if layout.kind != "native":
@@ -58,21 +57,41 @@ def _open(root: Path, hands: list[str] | None) -> _Input:
     return _Input(root, meta, layout)
 
 
+def _checked_paths(inputs: list[Path | str], output: Path | str) -> list[Path]:
+    """The inputs, resolved: none named twice (its episodes would be merged twice), none the output or
+    inside or around it (the merge replaces the output and would destroy that input)."""
+    roots, output = [Path(p).resolve() for p in inputs], Path(output).resolve()
+    twice = sorted({str(r) for r in roots if roots.count(r) > 1})
+    if twice:
+        raise ValueError(f"--inputs names {', '.join(twice)} more than once")
+    for root in roots:
+        if root == output or output.is_relative_to(root) or root.is_relative_to(output):
+            raise ValueError(
+                f"--output {output} would write over the input {root}; choose an output outside every input"
+            )
+    return roots
+
+
 def _passthrough(inputs: list[_Input]) -> dict[str, dict]:
-    """Numeric features every input has with the same dtype and shape (besides state and action)."""
+    """Numeric features every input has (besides state and action); inputs that disagree on one's dtype
+    or shape (clouds of different sizes, say) are an error, not a feature silently left out."""
     first = inputs[0].meta.features
     common = {}
     for key, feature in first.items():
         if key in (OBS_STATE, ACTION, *BOOKKEEPING) or feature["dtype"] not in NUMERIC:
             continue
-        same = all(
-            key in i.meta.features
-            and i.meta.features[key]["dtype"] == feature["dtype"]
-            and tuple(i.meta.features[key]["shape"]) == tuple(feature["shape"])
-            for i in inputs
-        )
-        if same:
-            common[key] = {**feature, "shape": tuple(feature["shape"])}
+        if not all(key in i.meta.features for i in inputs):
+            continue
+        kinds = {
+            i.root: (i.meta.features[key]["dtype"], tuple(i.meta.features[key]["shape"])) for i in inputs
+        }
+        if len(set(kinds.values())) > 1:
+            shapes = ", ".join(f"{root}: {dtype} {shape}" for root, (dtype, shape) in kinds.items())
+            raise ValueError(
+                f"the inputs disagree on feature '{key}' ({shapes}); record them alike (the same --n-points "
+                "for point clouds) to merge them"
+            )
+        common[key] = {**feature, "shape": tuple(feature["shape"])}
     dropped = sorted(
         {k for i in inputs for k in i.meta.features} - set(common) - {OBS_STATE, ACTION, *BOOKKEEPING}
     )
@@ -94,7 +113,7 @@ def merge_datasets(
     if galr_path is not None:
         galr = load_galr(str(galr_path))
         hands = known_hand_refs(galr)
-    opened = [_open(Path(p).resolve(), hands) for p in inputs]
+    opened = [_open(root, hands) for root in _checked_paths(inputs, output)]
     wrist = opened[0].layout.wrist_names
     fps = opened[0].meta.fps
     for i in opened:
@@ -118,6 +137,8 @@ def merge_datasets(
         OBS_EMBODIMENT: {"dtype": "int64", "shape": (1,), "names": embodiments},
         **extra,
     }
+    for source in opened:
+        _check_limits(source, galr, len(wrist))
     total = sum(i.meta.total_frames for i in opened)
     dataset = dict(repo_id=repo_id, fps=fps, features=features, robot_type="opfa_merged", use_videos=False)
     with new_dataset(output, overwrite, **dataset) as merged:
@@ -170,12 +191,24 @@ def _latent_noise_floor(galr, embodiments: list[str], state: torch.Tensor, ids: 
     return floor[0]
 
 
+def _hand(source: _Input, galr):
+    """The input's hand model and its joints' dataset columns in the model's order."""
+    ref = source.layout.hand_refs[0]
+    hand = load_hand(ref) if galr is None else galr.hand(source.layout.embodiments[0])[0]
+    return hand, [source.layout.joint_names.index(j) for j in hand.joint_names]
+
+
+def _check_limits(source: _Input, galr, n_wrist: int) -> None:
+    """Every state and action frame of the input within its hand's joint limits (before anything is
+    written: latents of values out of range would be cached without a word)."""
+    hand, order = _hand(source, galr)
+    for key, values in read_columns(source.root, [OBS_STATE, ACTION]).items():
+        hand.check_within_limits(torch.from_numpy(values[:, n_wrist:][:, order]), f"{source.root} ({key})")
+
+
 def _append(merged, source: _Input, embodiments, galr, n_wrist: int, extra: list[str], progress) -> None:
-    hand = (
-        load_hand(source.layout.hand_refs[0]) if galr is None else galr.hand(source.layout.embodiments[0])[0]
-    )
+    hand, order = _hand(source, galr)
     columns = read_columns(source.root, [OBS_STATE, ACTION, *extra, *BOOKKEEPING])
-    order = [source.layout.joint_names.index(j) for j in hand.joint_names]
     tasks = {int(row.task_index): task for task, row in source.meta.tasks.iterrows()}
     embodiment = np.array([embodiments.index(hand.name)], np.int64)
 

@@ -28,8 +28,8 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     pre = galr.add_parser("pretrain", help="pretrain GaLR on random reachable states of the hands")
     pre.add_argument(
         "--hands",
-        default="all",
-        help="'all' (the built-ins) or comma-separated names / spec paths; with --init, '+SPEC,...' adds "
+        help="'all' (the built-ins, the default; with --resume the run's own) or comma-separated names / spec "
+        "paths; with --init, '+SPEC,...' adds "
         "hands to the checkpoint's own",
     )
     pre.add_argument(
@@ -141,14 +141,18 @@ def _pretrain(args: argparse.Namespace) -> int:
     from lerobot_opfa.galr.train import PretrainConfig, pretrain
     from lerobot_opfa.hands.registry import builtin_hands
 
-    if args.hands.startswith("+") and not args.init:
+    asked = args.hands or ("" if args.resume else "all")  # resuming without --hands: the run's own
+    if asked.startswith("+") and not args.init:
         raise ValueError("--hands +SPEC adds hands to a trained GaLR: name it with --init")
     if args.init and args.model:
         raise ValueError("--init keeps the checkpoint's architecture: leave out --model")
-    hands = args.hands.lstrip("+").split(",") if args.hands.startswith("+") else None
+    if asked.startswith("+"):
+        hands = asked[1:].split(",")
+    else:
+        hands = _hand_list(asked, list(builtin_hands())) if asked else None
     config = PretrainConfig(
         output_dir=args.output_dir,
-        hands=hands or _hand_list(args.hands, list(builtin_hands())),
+        hands=hands,
         init=args.init,
         anchor=args.anchor,
         steps=args.steps,

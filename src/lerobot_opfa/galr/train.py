@@ -18,7 +18,7 @@ from tqdm import tqdm
 from lerobot_opfa.galr import checkpoints
 from lerobot_opfa.galr.data import HandBatch, make_batch, masked_rmse, sample_batch
 from lerobot_opfa.galr.model import Galr, GalrConfig, hand_record
-from lerobot_opfa.hands.registry import builtin_hands, load_hand
+from lerobot_opfa.hands.registry import builtin_hands, load_hand, load_spec
 
 logger = logging.getLogger(__name__)
 CHECKPOINTS = "checkpoints"
@@ -27,7 +27,8 @@ CHECKPOINTS = "checkpoints"
 @dataclass
 class PretrainConfig:
     output_dir: Path
-    hands: list[str] = field(default_factory=lambda: list(builtin_hands()))
+    hands: list[str] | None = None
+    """Names or spec paths; None: the built-ins, or on `resume` the run's own."""
     steps: int = 3000
     batch_size: int = 44
     shares: str = "dof"
@@ -116,6 +117,19 @@ def extended(init: str, hands: list[str]) -> Galr:
     return grown
 
 
+def _check_resumed_hands(config: PretrainConfig, trained: list[str]) -> None:
+    """A resumed run keeps its hands: hands asked for that it does not train (or, starting afresh, hands
+    it trains that were not asked for) are an error, not silently ignored."""
+    asked = {load_spec(h).name for h in config.hands}
+    missing = sorted(asked - set(trained))
+    left_out = sorted(set(trained) - asked) if config.init is None else []
+    if missing or left_out:
+        raise ValueError(
+            f"--resume continues a run on hands {trained}, but --hands asks for "
+            f"{sorted(asked)}; leave --hands out to resume, or choose another --output-dir for other hands"
+        )
+
+
 def _latest_checkpoint(output_dir: Path) -> Path | None:
     found = sorted((output_dir / CHECKPOINTS).glob("step_*"))
     return found[-1] if found else None
@@ -135,12 +149,16 @@ def pretrain(config: PretrainConfig) -> Galr:
     if checkpoint is not None:
         galr = Galr.from_pretrained(checkpoint)
         state = torch.load(checkpoint / "training_state.pt", weights_only=False)
+        if config.hands is not None:
+            _check_resumed_hands(config, galr.config.hand_names)
         config.hands = galr.config.hand_names
     elif config.init is not None:
+        config.hands = config.hands or list(builtin_hands())
         galr, state = extended(config.init, config.hands), None
         config.model, config.hands = galr.config, galr.config.hand_names
     else:
         torch.manual_seed(config.seed)
+        config.hands = config.hands or list(builtin_hands())
         config.model.hands = [hand_record(load_hand(name)) for name in config.hands]
         galr = Galr(config.model)
         state = None

@@ -42,8 +42,13 @@ def _urdf_geometry(element, urdf_path: Path) -> trimesh.Trimesh | None:
     elif geometry.sphere is not None:
         mesh = trimesh.creation.icosphere(subdivisions=3, radius=geometry.sphere.radius)
     elif geometry.mesh is not None:
-        loaded = trimesh.load(resolve_urdf_mesh(geometry.mesh.filename, urdf_path), force="mesh")
-        mesh = loaded.copy()
+        file = resolve_urdf_mesh(geometry.mesh.filename, urdf_path)
+        mesh = trimesh.load(file, force="mesh").copy()
+        if not len(mesh.faces) or not mesh.area > 0:
+            raise ValueError(
+                f"{urdf_path}: mesh '{geometry.mesh.filename}' ({file}) holds no surface: the file is corrupt "
+                "or not a mesh trimesh reads"
+            )
         if geometry.mesh.scale is not None:
             mesh.apply_scale(geometry.mesh.scale)
     else:

@@ -161,7 +161,8 @@ class HandSpec:
 
     def check_against(self, joint_names: list[str], link_names: list[str], geometry_links: set[str]) -> None:
         """Raise if the spec and the model disagree: every movable joint must be actuated or coupled,
-        every mapped name must exist, and every link with geometry must carry a label."""
+        every mapped name must exist, every link with geometry must carry a label and every labelled link
+        must have geometry (the cloud keeps its minimum of points on each)."""
         model_joints = set(joint_names)
         sources = {c.source for c in self.couplings.values()}
         described = set(self.joints) | set(self.couplings) | set(self.fixed) | sources
@@ -200,6 +201,14 @@ class HandSpec:
                 "links",
                 f"link(s) {unlabelled} carry geometry but have no [finger, segment] label "
                 "(null: not the hand)",
+            )
+        bare = sorted(set(self.links) - geometry_links)
+        if bare:
+            raise HandSpecError(
+                self.path,
+                "links",
+                f"link(s) {bare} are labelled but carry no geometry in the model, so the cloud has no points "
+                "on them; give them a visual or collision shape, or leave them out",
             )
         if self.base.link is not None and self.base.link not in link_names:
             raise HandSpecError(

@@ -15,6 +15,7 @@ import uuid
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 from lerobot.processor import (
     AddBatchDimensionProcessorStep,
@@ -209,6 +210,25 @@ def _frame_statistics(
     return state, column_statistics(out[TransitionKey.ACTION], ids, n_embodiments), floor
 
 
+def check_trainable_frames(config: OpfaConfig, layout: DatasetLayout, root: Path) -> None:
+    """Every hand keeps frames to train on once LeRobot's sampler drops the last `drop_n_last_frames` of
+    each episode; a hand it would skip entirely would be listed by the policy without being learned."""
+    columns = ["episode_index"] + ([OBS_EMBODIMENT] if layout.kind == "merged" else [])
+    frames = read_columns(root, columns)
+    episodes, first, lengths = np.unique(frames["episode_index"], return_index=True, return_counts=True)
+    hands = frames[OBS_EMBODIMENT].reshape(-1)[first] if layout.kind == "merged" else np.zeros_like(first)
+    drop = config.drop_n_last_frames
+    for index, hand in enumerate(layout.embodiments):
+        mine = lengths[hands == index]
+        if np.maximum(mine - drop, 0).sum() == 0:
+            raise ValueError(
+                f"hand '{hand}' has no frame to train on: its {len(mine)} episode(s) are at most "
+                f"{mine.max(initial=0)} frames long, and training skips the last {drop} of each (horizon "
+                f"{config.horizon} - n_action_steps {config.n_action_steps} - n_obs_steps "
+                f"{config.n_obs_steps} + 1); record longer episodes or lower --policy.horizon"
+            )
+
+
 def make_opfa_pre_post_processors(
     config: OpfaConfig,
     dataset_stats: dict[str, dict[str, torch.Tensor]] | None = None,
@@ -221,6 +241,7 @@ def make_opfa_pre_post_processors(
     if meta is None:
         raise ValueError("opfa processors are built from the training dataset: pass dataset_meta")
     layout, galr = resolve_config(config, meta)
+    check_trainable_frames(config, layout, Path(meta.root))
     cached = galr is not None and layout.latent_dim > 0  # policy_galr checked that this GaLR made them
     shared = dict(
         action_space=config.action_space,
