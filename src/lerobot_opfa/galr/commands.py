@@ -28,9 +28,8 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     pre = galr.add_parser("pretrain", help="pretrain GaLR on random reachable states of the hands")
     pre.add_argument(
         "--hands",
-        help="'all' (the built-ins, the default; with --resume the run's own) or comma-separated names / spec "
-        "paths; with --init, '+SPEC,...' adds "
-        "hands to the checkpoint's own",
+        help="'all' (the built-ins, the default; with --resume the run's own) or comma-separated names / "
+        "spec paths; with --init, '+SPEC,...' adds hands to the checkpoint's own",
     )
     pre.add_argument(
         "--init",

@@ -46,8 +46,8 @@ def _urdf_geometry(element, urdf_path: Path) -> trimesh.Trimesh | None:
         mesh = trimesh.load(file, force="mesh").copy()
         if not len(mesh.faces) or not mesh.area > 0:
             raise ValueError(
-                f"{urdf_path}: mesh '{geometry.mesh.filename}' ({file}) holds no surface: the file is corrupt "
-                "or not a mesh trimesh reads"
+                f"{urdf_path}: mesh '{geometry.mesh.filename}' ({file}) holds no surface: the file is "
+                "corrupt or not a mesh trimesh reads"
             )
         if geometry.mesh.scale is not None:
             mesh.apply_scale(geometry.mesh.scale)
