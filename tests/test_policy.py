@@ -440,6 +440,25 @@ def test_state_guard_warns_once_per_episode_and_refuses_nan(data, caplog):
         pre(dict(observation))
 
 
+def test_cloud_guard_refuses_nan_and_a_size_other_than_the_trained_one(data):
+    policy, pre, post, _ = make_policy(data, "inspire", action_space="raw")
+    observation = native_observation("inspire", torch.zeros(32 * 3))
+    pre(dict(observation))  # the trained size passes
+    cloud = torch.zeros(32 * 3)
+    cloud[7 * 3 + 1] = float("nan")
+    with pytest.raises(ValueError, match=r"observation.pointcloud is not finite \(NaN or inf\) at point 7"):
+        pre({**observation, OBS_POINTCLOUD: cloud})
+    for n_points in (100, 1024):
+        with pytest.raises(ValueError, match=rf"holds {n_points} points .* trained on 32 points"):
+            pre({**observation, OBS_POINTCLOUD: torch.zeros(n_points * 3)})
+
+
+def test_a_one_hand_postprocessor_acts_before_its_preprocessor_has_run(data):
+    policy, pre, post, _ = make_policy(data, "inspire", action_space="raw")
+    action = post(torch.zeros(1, 6 + 6))
+    assert action.shape == (1, 6 + 6) and action.isfinite().all()
+
+
 @pytest.mark.parametrize(
     ("space", "dataset", "width"), [("galr", "merged", 6 + 8), ("raw", "inspire", 6 + 6),
                                     ("per_embodiment", "merged", 6 + 28)]

@@ -67,7 +67,7 @@ def _urdf_for_mujoco(text: bytes, path: Path) -> tuple[str, dict[str, bytes]]:
     root = ET.fromstring(text)
     assets: dict[str, bytes] = {}
     for i, mesh in enumerate(root.iter("mesh")):
-        name = f"mesh_{i}.stl"
+        name = f"{i}_{Path(mesh.get('filename')).stem}.stl"  # MuJoCo's messages name the asset
         buffer = io.BytesIO()
         trimesh.load(resolve_urdf_mesh(mesh.get("filename"), path), force="mesh").export(
             buffer, file_type="stl"

@@ -334,7 +334,7 @@ def embodiment_ids(link: str, batch: int, embodiments: list[str], hand: str | No
             "its hand: postprocessor_overrides={'opfa_unnormalize': {'hand': H}, 'opfa_decode_joints': "
             "{'hand': H}}"
         )
-    if live and len(live[0].last_ids) == batch:
+    if live and live[0].last_ids is not None and len(live[0].last_ids) == batch:
         return live[0].last_ids
     if len(embodiments) == 1:
         return torch.zeros(batch, dtype=torch.long)
