@@ -27,7 +27,7 @@ from lerobot_opfa.experiments import protocols
 from lerobot_opfa.experiments.jobs import CONDITIONS, Workspace, galr_identity, source_commit, write_json
 from lerobot_opfa.experiments.report import summarize, write_report
 from lerobot_opfa.experiments.scales import SCALES, Scale, get_scale
-from lerobot_opfa.flags import non_negative_int, positive_float, positive_int
+from lerobot_opfa.flags import non_negative_int, positive_int
 
 TITLES = {
     "spatial": "Spatial generalisation: success in regions covered only by the other embodiments' demos",
@@ -65,7 +65,7 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         parser.add_argument("--scale", default="small", choices=list(SCALES))
         parser.add_argument(
             "--epochs",
-            type=positive_float,
+            type=float,
             help="train this many epochs instead of the scale's (named in the report)",
         )
         parser.add_argument("--output-dir", type=Path, help="work folder (default outputs/experiments/NAME)")
