@@ -117,6 +117,7 @@ def test_check_warns_about_a_finger_that_flexes_away_from_the_palm(tmp_path, cap
     shutil.copytree(hand_models_dir() / "inspire", spec.parent)
     code, out = _check(spec, capsys)
     assert "WARNING" not in out
+    _edit(spec, lambda raw: raw.update(name="my_inspire"))  # an edited built-in is a hand of its own
     _edit(spec, lambda raw: raw["joints"].update(index_mcp_flex={"universal": "index_mcp_flex", "sign": -1}))
     code, out = _check(spec, capsys)
     assert code == 0 and "joint 'index_mcp_flex' (index_mcp_flex) bends its finger away from the palm" in out

@@ -30,6 +30,7 @@ from lerobot.processor import (
 from lerobot.processor.factory import make_policy_processor_pipelines
 from lerobot.utils.constants import ACTION, OBS_STATE
 
+from lerobot_opfa.datasets import io as dataset_io
 from lerobot_opfa.datasets.io import read_columns
 from lerobot_opfa.datasets.layout import DatasetLayout, opfa_record, read_layout
 from lerobot_opfa.datasets.statistics import (
@@ -214,7 +215,7 @@ def check_trainable_frames(config: OpfaConfig, layout: DatasetLayout, root: Path
     """Every hand keeps frames to train on once LeRobot's sampler drops the last `drop_n_last_frames` of
     each episode; a hand it would skip entirely would be listed by the policy without being learned."""
     columns = ["episode_index"] + ([OBS_EMBODIMENT] if layout.kind == "merged" else [])
-    frames = read_columns(root, columns)
+    frames = dataset_io.read_columns(root, columns)  # two bookkeeping columns, not the frames' values
     episodes, first, lengths = np.unique(frames["episode_index"], return_index=True, return_counts=True)
     hands = frames[OBS_EMBODIMENT].reshape(-1)[first] if layout.kind == "merged" else np.zeros_like(first)
     drop = config.drop_n_last_frames
