@@ -140,8 +140,8 @@ def merge_datasets(
     for source in opened:
         _check_limits(source, galr, len(wrist))
     total = sum(i.meta.total_frames for i in opened)
-    dataset = dict(repo_id=repo_id, fps=fps, features=features, robot_type="opfa_merged", use_videos=False)
-    with new_dataset(output, overwrite, **dataset) as merged:
+    create = dict(repo_id=repo_id, fps=fps, features=features, robot_type="opfa_merged", use_videos=False)
+    with new_dataset(output, overwrite, **create) as merged:
         partial = merged.root
         with tqdm(total=total, desc="merging", unit="frame") as progress:
             for source in opened:

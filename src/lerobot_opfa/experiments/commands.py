@@ -64,9 +64,7 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     for parser in (spatial, objects, fewshot, nine):
         parser.add_argument("--scale", default="small", choices=list(SCALES))
         parser.add_argument(
-            "--epochs",
-            type=float,
-            help="train this many epochs instead of the scale's (named in the report)",
+            "--epochs", type=float, help="train this many epochs instead of the scale's (named in the report)"
         )
         parser.add_argument("--output-dir", type=Path, help="work folder (default outputs/experiments/NAME)")
         parser.add_argument("--report-dir", type=Path, help="where the JSON/MD/PNG go (default: output dir)")
