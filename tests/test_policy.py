@@ -419,7 +419,10 @@ def test_a_state_of_the_wrong_width_is_an_error_of_the_preprocessor_though_its_e
     _, pre, _, _ = make_policy(data, "merged")
     observation = native_observation("leap", torch.zeros(32 * 3)) | {OBS_HAND: "leap"}
     observation["observation.state"] = observation["observation.state"][:-1]
-    with pytest.raises(ValueError, match=r"state/action width 21 != wrist 6 \+ 16 joints"):
+    with pytest.raises(
+        ValueError,
+        match=r"observation.state has 21 entries; the 'leap' robot .* has 22: 6 body entries, then 16 joints",
+    ):
         pre(observation)
 
 

@@ -18,6 +18,14 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     merge.add_argument(
         "--galr", help="GaLR checkpoint (packaged name, folder or Hub repo id): cache z of every frame"
     )
+    merge.add_argument(
+        "--joint-maps",
+        type=Path,
+        nargs="+",
+        default=[],
+        help="joint map YAML files for inputs whose entries are not named after their hand's joints "
+        "(docs/usage.md); each input takes the map whose entries it has",
+    )
     merge.add_argument("--repo-id", default="local/opfa_merged")
     merge.add_argument("--overwrite", action="store_true")
     merge.set_defaults(func=_merge)
@@ -41,7 +49,7 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
 def _merge(args: argparse.Namespace) -> None:
     from lerobot_opfa.datasets.merge import merge_datasets
 
-    out = merge_datasets(args.inputs, args.output, args.galr, args.repo_id, args.overwrite)
+    out = merge_datasets(args.inputs, args.output, args.galr, args.repo_id, args.overwrite, args.joint_maps)
     print(f"wrote {_summary(out)}" + (f"; latents cached with GaLR {args.galr}" if args.galr else ""))
 
 

@@ -18,6 +18,7 @@ from pathlib import Path
 from lerobot.utils.constants import ACTION, OBS_STATE
 
 from lerobot_opfa.datasets.io import read_json
+from lerobot_opfa.datasets.joint_map import JointMap, closest_hands, map_to_write
 from lerobot_opfa.features import OBS_EMBODIMENT
 from lerobot_opfa.hands.registry import builtin_hands, hand_ref, load_spec
 from lerobot_opfa.hands.spec import HandSpec
@@ -42,8 +43,9 @@ class DatasetLayout:
     hand_refs: list[str]
     """Per embodiment, what `load_hand` takes: a built-in name or a user hand's spec path."""
     wrist_names: list[str]
-    joint_names: list[str] = field(default_factory=list)
-    """native: the hand's joint names in the dataset's column order."""
+    """The body entries: every state/action entry that is not a hand joint (a wrist pose, an arm's joints)."""
+    joint_maps: list[JointMap] = field(default_factory=list)
+    """Per embodiment, how its robot's state/action vectors hold the body entries and the hand's joints."""
     latent_dim: int = 0
     """merged: width of the cached latents (0: none cached)."""
     galr_fingerprint: str | None = None
@@ -68,24 +70,15 @@ def _hand_candidates(hands: list[str] | None) -> list[str]:
 
 
 def identify_hand(names: list[str], robot_type: str | None, hands: list[str] | None = None) -> HandSpec:
-    """The hand whose actuated joints a native state vector holds: `robot_type` when it names a hand,
-    else the one candidate whose joints all appear. Errors list the missing and unknown names."""
+    """The hand whose actuated joints a native state vector holds under their own names: `robot_type` when
+    it names a hand, else the one candidate whose joints all appear. Otherwise the error names the closest
+    hand by joint structure and the joint map to write."""
     specs = list({s.path: s for s in map(load_spec, _hand_candidates(hands))}.values())
     named = [s for s in specs if s.name == robot_type]
-    if named:
-        spec = named[0]
-        missing = [j for j in spec.actuated_joints if j not in names]
-        if missing:
-            extra = [n for n in names if n not in spec.actuated_joints]
-            raise JointNameError(
-                f"dataset joint names do not match hand '{spec.name}' ({spec.path}): missing {missing}; "
-                f"unknown (not joints of '{spec.name}', would be read as wrist entries) {extra}"
-            )
-        return spec
-    matches = [s for s in specs if set(s.actuated_joints) <= set(names)]
-    if len(matches) == 1:
-        return matches[0]
-    if len(matches) > 1:
+    if named and set(named[0].actuated_joints) <= set(names):
+        return named[0]
+    matches = [] if named else [s for s in specs if set(s.actuated_joints) <= set(names)]
+    if matches:
         best = max(len(s.actuated_joints) for s in matches)
         widest = [s for s in matches if len(s.actuated_joints) == best]
         if len(widest) == 1:
@@ -94,28 +87,19 @@ def identify_hand(names: list[str], robot_type: str | None, hands: list[str] | N
             f"joint names {names} fit several hands ({', '.join(s.name for s in widest)}); set the dataset's "
             "robot_type to the hand's name"
         )
-    closest = max(specs, key=lambda s: len(set(s.actuated_joints) & set(names)))
+    closest, *alternatives = named or closest_hands(names, specs)
+    whose = f"hand '{robot_type}'" if named else "any registered hand"
     missing = [j for j in closest.actuated_joints if j not in names]
-    unknown = [n for n in names if n not in closest.actuated_joints]
+    unknown = [n for n in names if n not in closest.joints]
+    hands = ", ".join(repr(s.name) for s in [closest, *alternatives])
     raise JointNameError(
-        f"no registered hand ({', '.join(s.name for s in specs)}) has all of the joints {names}. Closest: "
-        f"'{closest.name}' ({closest.path}): missing {missing}; unknown {unknown}. Name the state/action "
-        "entries after the spec's actuated joints (see `lerobot-opfa hands list`)"
+        f"the state/action entries ({len(names)}: {', '.join(names[:4])}, ...) are not named after the "
+        f"joints of {whose}; closest by joint structure: {hands} "
+        f"({len(closest.joints)} joints; missing {missing}, unknown {unknown}). "
+        "Write a joint map (docs/usage.md) and pass it "
+        "(merge: --joint-maps FILE; training: --policy.joint_map=FILE); a start, to check line by line:\n"
+        + map_to_write(names, closest, alternatives)
     )
-
-
-def split_native_names(names: list[str], spec: HandSpec) -> tuple[list[str], list[str]]:
-    """(wrist names, joint names in column order): the hand's joints must form the trailing block."""
-    joints = set(spec.actuated_joints)
-    n_wrist = len(names) - len(joints)
-    wrist, hand = names[:n_wrist], names[n_wrist:]
-    if set(hand) != joints or any(n in joints for n in wrist):
-        raise JointNameError(
-            f"the joints of hand '{spec.name}' must follow the wrist entries: got {names}; missing "
-            f"{[j for j in spec.actuated_joints if j not in names]}, unknown "
-            f"{[n for n in hand if n not in joints]}"
-        )
-    return wrist, hand
 
 
 def opfa_record(root: Path | str | None) -> dict:
@@ -149,20 +133,25 @@ def recorded_hands(root: Path | str | None, record: dict) -> dict[str, str]:
 
 
 def read_layout(
-    features: dict, robot_type: str | None = None, root: Path | str | None = None, hands=None
+    features: dict,
+    robot_type: str | None = None,
+    root: Path | str | None = None,
+    hands=None,
+    joint_map: JointMap | None = None,
 ) -> DatasetLayout:
     """The layout of a dataset from its features and what `meta/opfa.json` under `root` records. `hands`:
-    the hands (names or spec paths) it may hold besides the built-ins and the ones it records."""
+    the hands (names or spec paths) it may hold besides the built-ins and the ones it records; `joint_map`:
+    how a native dataset holds its hand, when its entries are not named after the spec's joints."""
     record = opfa_record(root)
     # The hands the dataset records come first: a user's hand named like a built-in is the user's.
     candidates = [*recorded_hands(root, record).values(), *_hand_candidates(hands)]
     names = feature_names(features, OBS_STATE)
-    if ACTION in features and feature_names(features, ACTION) != names:
-        raise JointNameError(
-            f"'{ACTION}' and '{OBS_STATE}' must name the same entries in the same order; got "
-            f"{feature_names(features, ACTION)} and {names}"
-        )
+    actions = feature_names(features, ACTION) if ACTION in features else names
     if OBS_EMBODIMENT in features:
+        if actions != names:
+            raise JointNameError(
+                f"a merged dataset's '{ACTION}' and '{OBS_STATE}' must name the same entries"
+            )
         embodiments = feature_names(features, OBS_EMBODIMENT)
         universal = list(UNIVERSAL_JOINT_NAMES)
         starts = [i for i in range(len(names)) if names[i : i + len(universal)] == universal]
@@ -180,8 +169,23 @@ def read_layout(
                 f"{root}: hand(s) {unknown} are neither built in nor recorded by the dataset (meta/opfa.json)"
             )
         refs = [hand_ref(specs[h]) for h in embodiments]
+        maps = [_recorded_map(record, specs[h], wrist) for h in embodiments]
         fingerprint = record.get("galr_fingerprint")
-        return DatasetLayout("merged", embodiments, refs, wrist, [], len(rest), fingerprint)
-    spec = identify_hand(names, robot_type, candidates)
-    wrist, joints = split_native_names(names, spec)
-    return DatasetLayout("native", [spec.name], [hand_ref(spec)], wrist, joints)
+        return DatasetLayout("merged", embodiments, refs, wrist, maps, len(rest), fingerprint)
+    if joint_map is None:
+        spec = identify_hand(names, robot_type, candidates)
+        joint_map = JointMap.named_after(spec, names, actions)
+    else:
+        joint_map = joint_map.bind(names, actions)
+        spec = joint_map.spec
+    return DatasetLayout("native", [spec.name], [hand_ref(spec)], joint_map.body_names, [joint_map])
+
+
+def _recorded_map(record: dict, spec: HandSpec, wrist: list[str]) -> JointMap:
+    """How the robot of a merged dataset's hand laid out its vectors: the map its input was merged with, or
+    (a dataset of this package's simulator) the body entries, then the joints under their own names."""
+    recorded = record.get("joint_maps", {}).get(spec.name)
+    if recorded is not None:
+        return JointMap.from_dict(recorded, f"the joint map of '{spec.name}' recorded in {OPFA_META_FILE}")
+    names = [*wrist, *spec.actuated_joints]
+    return JointMap.named_after(spec, names, names)

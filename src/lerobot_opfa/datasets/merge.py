@@ -13,6 +13,7 @@ import json
 import logging
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -21,7 +22,15 @@ from lerobot.utils.constants import ACTION, OBS_STATE
 from tqdm import tqdm
 
 from lerobot_opfa.datasets.io import check_dataset_folder, new_dataset, read_columns
-from lerobot_opfa.datasets.layout import OPFA_META_FILE, DatasetLayout, hand_entry, latent_names, read_layout
+from lerobot_opfa.datasets.joint_map import JointMap
+from lerobot_opfa.datasets.layout import (
+    OPFA_META_FILE,
+    DatasetLayout,
+    feature_names,
+    hand_entry,
+    latent_names,
+    read_layout,
+)
 from lerobot_opfa.datasets.statistics import column_statistics, noise_floor, raw_noise, write_statistics
 from lerobot_opfa.features import OBS_EMBODIMENT
 from lerobot_opfa.galr import checkpoints
@@ -34,6 +43,9 @@ from lerobot_opfa.galr.frozen import (
 )
 from lerobot_opfa.hands.registry import load_hand, load_spec
 from lerobot_opfa.hands.universal import UNIVERSAL_JOINT_NAMES
+
+if TYPE_CHECKING:
+    from lerobot_opfa.hands.model import HandModel
 
 logger = logging.getLogger(__name__)
 
@@ -48,10 +60,17 @@ class _Input:
     layout: DatasetLayout
 
 
-def _open(root: Path, hands: list[str] | None) -> _Input:
+def _open(root: Path, hands: list[str] | None, joint_maps: list[JointMap]) -> _Input:
     check_dataset_folder(root)
     meta = LeRobotDatasetMetadata(f"local/{root.name}", root=root)
-    layout = read_layout(meta.features, meta.robot_type, root, hands)
+    names = set(feature_names(meta.features, OBS_STATE))
+    fitting = [m for m in joint_maps if set(m.joints) <= names]
+    if len(fitting) > 1:
+        raise ValueError(
+            f"{root}: several joint maps fit its entries ({', '.join(m.source for m in fitting)})"
+        )
+    joint_map = fitting[0] if fitting else None
+    layout = read_layout(meta.features, meta.robot_type, root, hands, joint_map)
     if layout.kind != "native":
         raise ValueError(f"{root} is already a merged dataset; merge the per-hand datasets it came from")
     return _Input(root, meta, layout)
@@ -106,20 +125,27 @@ def merge_datasets(
     galr_path: str | None = None,
     repo_id: str = "local/opfa_merged",
     overwrite: bool = False,
+    joint_maps: list[Path | str] = (),
 ) -> Path:
-    """Writes the merged dataset to `output` atomically and returns its path."""
+    """Writes the merged dataset to `output` atomically and returns its path. `joint_maps`: map files for
+    inputs whose entries are not named after their hand's joints; each input takes the one whose entries
+    it has."""
     galr = None
     hands = None
     if galr_path is not None:
         galr = load_galr(str(galr_path))
         hands = known_hand_refs(galr)
-    opened = [_open(root, hands) for root in _checked_paths(inputs, output)]
+    maps = [JointMap.load(path) for path in joint_maps]
+    opened = [_open(root, hands, maps) for root in _checked_paths(inputs, output)]
+    unused = [m.source for m in maps if not any(i.layout.joint_maps[0].source == m.source for i in opened)]
+    if unused:
+        raise ValueError(f"joint map(s) {unused} fit none of the inputs (their entries are in no input)")
     wrist = opened[0].layout.wrist_names
     fps = opened[0].meta.fps
     for i in opened:
         if i.layout.wrist_names != wrist or i.meta.fps != fps:
             raise ValueError(
-                f"inputs disagree: {i.root} has wrist entries {i.layout.wrist_names} at {i.meta.fps} fps, "
+                f"inputs disagree: {i.root} has body entries {i.layout.wrist_names} at {i.meta.fps} fps, "
                 f"{opened[0].root} has {wrist} at {fps} fps"
             )
     embodiments = list(dict.fromkeys(i.layout.embodiments[0] for i in opened))
@@ -138,14 +164,14 @@ def merge_datasets(
         **extra,
     }
     for source in opened:
-        _check_limits(source, galr, len(wrist))
+        _check_limits(source, galr)
     total = sum(i.meta.total_frames for i in opened)
     create = dict(repo_id=repo_id, fps=fps, features=features, robot_type="opfa_merged", use_videos=False)
     with new_dataset(output, overwrite, **create) as merged:
         partial = merged.root
         with tqdm(total=total, desc="merging", unit="frame") as progress:
             for source in opened:
-                _append(merged, source, embodiments, galr, len(wrist), list(extra), progress)
+                _append(merged, source, embodiments, galr, list(extra), progress)
         merged.finalize()
         write_statistics(partial, _statistics(partial, embodiments, galr, len(wrist)))
         refs = {i.layout.embodiments[0]: i.layout.hand_refs[0] for i in opened}
@@ -155,6 +181,7 @@ def merge_datasets(
             "inputs": [str(i.root) for i in opened],
             "latent_dim": latent_dim,
             "hands": user_hands,
+            "joint_maps": _deployed_maps(opened),
         }
         if galr is not None:
             meta |= {"galr": checkpoints.record(galr_path), "galr_fingerprint": galr_fingerprint(galr)}
@@ -191,30 +218,47 @@ def _latent_noise_floor(galr, embodiments: list[str], state: torch.Tensor, ids: 
     return floor[0]
 
 
-def _hand(source: _Input, galr):
-    """The input's hand model and its joints' dataset columns in the model's order."""
+def _deployed_maps(opened: list[_Input]) -> dict[str, dict]:
+    """Per hand, the joint map its robot's vectors were merged with: what a policy trained on the merged
+    dataset saves, to speak that robot's entries when deployed."""
+    maps = {}
+    for source in opened:
+        joint_map = source.layout.joint_maps[0]
+        first = maps.setdefault(source.layout.embodiments[0], joint_map.to_dict())
+        if first != joint_map.to_dict():
+            logger.warning(
+                "inputs of hand '%s' lay out their entries differently; a policy trained on this dataset "
+                "drives the robot of the first (%s)",
+                source.layout.embodiments[0],
+                opened[0].root,
+            )
+    return maps
+
+
+def _hand(source: _Input, galr) -> HandModel:
     ref = source.layout.hand_refs[0]
-    hand = load_hand(ref) if galr is None else galr.hand(source.layout.embodiments[0])[0]
-    return hand, [source.layout.joint_names.index(j) for j in hand.joint_names]
+    return load_hand(ref) if galr is None else galr.hand(source.layout.embodiments[0])[0]
 
 
-def _check_limits(source: _Input, galr, n_wrist: int) -> None:
+def _check_limits(source: _Input, galr) -> None:
     """Every state and action frame of the input within its hand's joint limits (before anything is
     written: latents of values out of range would be cached without a word)."""
-    hand, order = _hand(source, galr)
+    hand, joint_map = _hand(source, galr), source.layout.joint_maps[0]
     for key, values in read_columns(source.root, [OBS_STATE, ACTION]).items():
-        hand.check_within_limits(torch.from_numpy(values[:, n_wrist:][:, order]), f"{source.root} ({key})")
+        _, q = joint_map.split(torch.tensor(values, dtype=torch.float64), key)
+        hand.check_within_limits(q, f"{source.root} ({key}, through {joint_map.source})")
 
 
-def _append(merged, source: _Input, embodiments, galr, n_wrist: int, extra: list[str], progress) -> None:
-    hand, order = _hand(source, galr)
+def _append(merged, source: _Input, embodiments, galr, extra: list[str], progress) -> None:
+    hand, joint_map = _hand(source, galr), source.layout.joint_maps[0]
     columns = read_columns(source.root, [OBS_STATE, ACTION, *extra, *BOOKKEEPING])
     tasks = {int(row.task_index): task for task, row in source.meta.tasks.iterrows()}
     embodiment = np.array([embodiments.index(hand.name)], np.int64)
 
-    def to_layout(values: np.ndarray) -> np.ndarray:
-        q = torch.from_numpy(values[:, n_wrist:][:, order]).float()
-        parts = [values[:, :n_wrist], hand.to_universal(q).cpu().numpy()]
+    def to_layout(values: np.ndarray, key: str) -> np.ndarray:
+        body, q = joint_map.split(torch.tensor(values, dtype=torch.float64), key)
+        q = q.float()
+        parts = [body.numpy(), hand.to_universal(q).cpu().numpy()]
         if galr is not None:
             parts.append(encode_joints(galr, hand.name, q).cpu().numpy())
         return np.concatenate(parts, axis=1).astype(np.float32)
@@ -223,7 +267,10 @@ def _append(merged, source: _Input, embodiments, galr, n_wrist: int, extra: list
     for episode in dict.fromkeys(episodes.tolist()):
         rows = np.flatnonzero(episodes == episode)
         rows = rows[np.argsort(columns["frame_index"][rows])]
-        state, action = to_layout(columns[OBS_STATE][rows]), to_layout(columns[ACTION][rows])
+        state, action = (
+            to_layout(columns[OBS_STATE][rows], OBS_STATE),
+            to_layout(columns[ACTION][rows], ACTION),
+        )
         for j, row in enumerate(rows):
             frame = {OBS_STATE: state[j], ACTION: action[j], OBS_EMBODIMENT: embodiment}
             for key in extra:

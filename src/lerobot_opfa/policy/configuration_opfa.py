@@ -38,6 +38,10 @@ class OpfaConfig(PreTrainedConfig):
     """A GaLR checkpoint (local folder or Hub repo id). Needed to train `galr`; its weights then travel
     inside the saved processors, so a trained policy does not need it any more."""
 
+    joint_map: str | None = None
+    """A joint map (YAML, docs/usage.md) for a single-hand dataset whose state/action entries are not named
+    after its hand's joints; read at the first training run and saved inside the processors."""
+
     normalization: NormalizationMode = NormalizationMode.MIN_MAX
     """Per-embodiment normalisation of state and action (MIN_MAX, MEAN_STD or IDENTITY); MIN_MAX keeps z and
     joints in [-1, 1], the range DDIM clips its samples to."""

@@ -1,16 +1,16 @@
 """Processor steps between a hand's joints and the policy's action space (registered, saved by name).
 
-Preprocessor: `opfa_encode_joints` turns `observation.state` and `action` (native layout of one hand, or a
-merged dataset's universal layout with `observation.embodiment`) into the policy space: wrist + z for
-`galr`, wrist + that hand's joints for `raw`, wrist + masked universal joints for `per_embodiment`. It also
-leaves the batch's embodiment ids in `observation.embodiment`.
+Preprocessor: `opfa_encode_joints` turns `observation.state` and `action` (a robot's entries, read through
+the embodiment's joint map, saved here; or a merged dataset's universal layout with `observation.embodiment`)
+into the policy space: body + z for `galr`, body + that hand's joints for `raw`, body + masked universal
+joints for `per_embodiment`. It also leaves the batch's embodiment ids in `observation.embodiment`.
 
-Postprocessor: `opfa_decode_joints` maps policy-space actions back to the attached hand's joints (for
-`galr` through the GaLR decoder). A postprocessor only sees the action, so it reads which hand produced it
-from its preprocessor partner: both carry the same `link` id (saved in both JSON configs), the same way
-LeRobot's relative/absolute action steps pair up. Two pipelines loaded from one checkpoint share the link:
-when both preprocessors have seen observations, a postprocessor cannot tell them apart and refuses; give
-each postprocessor its hand instead (`hand`, e.g. through `postprocessor_overrides`).
+Postprocessor: `opfa_decode_joints` maps policy-space actions back to the robot's action entries (for
+`galr` through the GaLR decoder), inverting the same joint map. A postprocessor only sees the action, so it
+reads which hand produced it from its preprocessor partner: both carry the same `link` id (saved in both
+JSON configs), the same way LeRobot's relative/absolute action steps pair up. Two pipelines loaded from one
+checkpoint share the link: when both preprocessors have seen observations, a postprocessor cannot tell them
+apart and refuses; give each postprocessor its hand instead (`hand`, e.g. through `postprocessor_overrides`).
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ from lerobot.configs.types import PipelineFeatureType, PolicyFeature
 from lerobot.processor import ObservationProcessorStep, ProcessorStep, ProcessorStepRegistry, TransitionKey
 from lerobot.utils.constants import ACTION, OBS_STATE
 
+from lerobot_opfa.datasets.joint_map import JointMap
 from lerobot_opfa.features import OBS_EMBODIMENT, OBS_HAND, OBS_POINTCLOUD, batch_embodiments
 from lerobot_opfa.galr.frozen import encode_joints, encode_universal
 from lerobot_opfa.galr.model import Galr
@@ -92,8 +93,12 @@ class _HandSpace:
     embodiment_joints: list[list[str]] = field(default_factory=list)
     """Per embodiment, its universal joints (the config's; read from the specs for a step saved before)."""
     wrist_dim: int = 6
+    """Body entries of a policy state or action (a wrist pose, an arm's joints) before the hand's part."""
     galr_config: dict | None = None
     link: str = ""
+    joint_maps: list[dict] = field(default_factory=list)
+    """Per embodiment, how its robot's vectors hold the body entries and the hand's joints (a bound
+    `JointMap` as a dict); a step saved before: the body entries, then the joints in spec order."""
     galr: Galr | None = field(default=None, repr=False)
     """Runtime object: built from `galr_config` when loading, weights restored by `load_state_dict`."""
 
@@ -104,7 +109,40 @@ class _HandSpace:
             self.galr = Galr(self.galr_config).eval().requires_grad_(False)
         if not self.embodiment_joints and not self.space.uses_galr:
             self.embodiment_joints = [load_spec(ref).universal_names for ref in self.hand_refs]
+        if not self.joint_maps:
+            self.joint_maps = [self._spec_order_map(ref).to_dict() for ref in self.hand_refs]
+        self.maps = [
+            JointMap.from_dict(m, f"the joint map of '{e}'")
+            for m, e in zip(self.joint_maps, self.embodiments, strict=True)
+        ]
         self._hands: dict[int, HandModel] = {}
+
+    def _spec_order_map(self, ref: str, joint_names: list[str] | None = None) -> JointMap:
+        spec = load_spec(ref)
+        names = [f"body_{i}" for i in range(self.wrist_dim)] + list(joint_names or spec.actuated_joints)
+        return JointMap.named_after(spec, names, names)
+
+    def check_width(self, x: torch.Tensor, index: int, key: str, spec_order: bool) -> None:
+        """A robot's state or action has the entries of the embodiment's robot; one in spec order (this
+        package's env) the body entries, then the hand's joints."""
+        expected = self.wrist_dim + self.model(index).dof if spec_order else len(self.maps[index].names(key))
+        if x.shape[-1] != expected:
+            hand = self.embodiments[index]
+            raise ValueError(
+                f"{key} has {x.shape[-1]} entries; the '{hand}' robot this policy was trained on has "
+                f"{expected}: "
+                + (
+                    f"{self.wrist_dim} body entries, then {self.model(index).dof} joints"
+                    if spec_order
+                    else ", ".join(self.maps[index].names(key))
+                )
+            )
+
+    def to_robot(self, index: int, body: torch.Tensor, q: torch.Tensor, spec_order: bool) -> torch.Tensor:
+        """Body entries and joints (spec order and units) -> the robot's action vector."""
+        if spec_order:
+            return torch.cat([body, q.to(body.dtype)], dim=-1)
+        return self.maps[index].join(body, q)
 
     @property
     def space(self) -> ActionSpace:
@@ -151,6 +189,7 @@ class _HandSpace:
             "wrist_dim": self.wrist_dim,
             "galr_config": self.galr_config,
             "link": self.link,
+            "joint_maps": [dict(m) for m in self.joint_maps],
         }
 
     def galr_state(self, prefix: str) -> dict[str, torch.Tensor]:
@@ -180,16 +219,22 @@ class _HandSpace:
 @dataclass
 class OpfaEncodeJointsStep(_HandSpace, ProcessorStep):
     hand: str | None = None
-    """Hand of batches that carry no embodiment id (native layout). None: the trained hand whose joint
-    count fits the state width, or an error when several do."""
+    """Hand of batches that carry no embodiment id (a robot's vectors). None: the trained hand whose robot
+    has the state's width, or an error when several do."""
     native_joint_names: list[str] = field(default_factory=list)
-    """Column order of `hand`'s joints in the training dataset (any order of the spec's names)."""
+    """A step saved before `joint_maps`: the column order of `hand`'s joints (read, not saved)."""
     use_cached_latents: bool = False
     """Take z from a merged dataset's cache (set only when its GaLR fingerprint matches)."""
 
     def __post_init__(self):
+        if self.native_joint_names and not self.joint_maps:
+            self.joint_maps = [
+                self._spec_order_map(ref, self.native_joint_names if e == self.hand else None).to_dict()
+                for ref, e in zip(self.hand_refs, self.embodiments, strict=True)
+            ]
         super().__post_init__()
         self.last_ids: torch.Tensor | None = None
+        self.last_in_spec_order = False
 
     def __call__(self, transition):
         new = transition.copy()
@@ -197,26 +242,36 @@ class OpfaEncodeJointsStep(_HandSpace, ProcessorStep):
         state = obs[OBS_STATE].float()
         action = new.get(TransitionKey.ACTION)
         hand = obs.pop(OBS_HAND, None)
+        spec_order = hand is not None  # this package's env: the wrist, then the joints in spec order
         if OBS_EMBODIMENT in obs:
             ids = batch_embodiments(obs[OBS_EMBODIMENT]).to(state.device)
-            convert = self._from_universal
+
+            def convert(x, key):
+                return self._from_universal(x, ids)
         else:
             index = self._hand_index(hand) if hand is not None else self._native_index(state.shape[-1])
-            self._check_native_width(state, index)  # now, even when the state's encode is deferred
+            self.check_width(state, index, OBS_STATE, spec_order)  # now, even when the encode is deferred
             ids = torch.full((len(state),), index, dtype=torch.long, device=state.device)
-            convert = self._from_native
+
+            def convert(x, key):
+                return self._from_robot(x, index, key, spec_order)
+
         if isinstance(action, torch.Tensor):
-            obs[OBS_STATE] = convert(state, ids)
-            new[TransitionKey.ACTION] = convert(action.float(), ids)
+            obs[OBS_STATE] = convert(state, OBS_STATE)
+            new[TransitionKey.ACTION] = convert(action.float(), ACTION)
         elif self.space.uses_galr:  # inference: encoded only if the policy reads this state (deferred.py)
-            obs[OBS_STATE] = defer(lambda: convert(state, ids), state, self.policy_width)
+            obs[OBS_STATE] = defer(lambda: convert(state, OBS_STATE), state, self.policy_width)
         else:
-            obs[OBS_STATE] = convert(state, ids)
+            obs[OBS_STATE] = convert(state, OBS_STATE)
         obs[OBS_EMBODIMENT] = ids
-        self.last_ids = ids
+        self.last_ids, self.last_in_spec_order = ids, spec_order
         _ENCODERS.setdefault(self.link, weakref.WeakValueDictionary())[id(self)] = self
         new[TransitionKey.OBSERVATION] = obs
         return new
+
+    def forget_last_batch(self) -> None:
+        """Its postprocessor partner no longer reads this batch's hand (one the pipeline builder encoded)."""
+        self.last_ids, self.last_in_spec_order = None, False
 
     # --- native layout: wrist + one hand's joints ----------------------------------------------------
     def _hand_index(self, name: str) -> int:
@@ -227,8 +282,7 @@ class OpfaEncodeJointsStep(_HandSpace, ProcessorStep):
     def _native_index(self, width: int) -> int:
         if self.hand is not None:
             return self.embodiments.index(self.hand)
-        dof = width - self.wrist_dim
-        fits = [i for i in range(len(self.embodiments)) if self.model(i).dof == dof]
+        fits = [i for i, m in enumerate(self.maps) if len(m.state_names) == width]
         if len(fits) != 1:
             raise ValueError(
                 f"cannot tell which hand a state of width {width} belongs to (trained on "
@@ -237,18 +291,14 @@ class OpfaEncodeJointsStep(_HandSpace, ProcessorStep):
             )
         return fits[0]
 
-    def _from_native(self, x: torch.Tensor, ids: torch.Tensor) -> torch.Tensor:
-        index = int(ids[0])
-        self._check_native_width(x, index)
-        q = x[..., self.wrist_dim :]
-        if self.embodiments[index] == self.hand and self.native_joint_names:
-            q = q[..., self._native_order]
-        return torch.cat([x[..., : self.wrist_dim], self.space.from_joints(self, index, q)], dim=-1)
-
-    def _check_native_width(self, x: torch.Tensor, index: int) -> None:
-        dof = self.model(index).dof
-        if x.shape[-1] != self.wrist_dim + dof:
-            raise ValueError(f"state/action width {x.shape[-1]} != wrist {self.wrist_dim} + {dof} joints")
+    def _from_robot(self, x: torch.Tensor, index: int, key: str, spec_order: bool) -> torch.Tensor:
+        """A robot's state or action -> the policy space (body entries, then the space's hand part)."""
+        self.check_width(x, index, key, spec_order)
+        if spec_order:
+            body, q = x[..., : self.wrist_dim], x[..., self.wrist_dim :]
+        else:
+            body, q = self.maps[index].split(x, key)
+        return torch.cat([body, self.space.from_joints(self, index, q)], dim=-1)
 
     # --- merged layout: wrist + universal joints [+ cached z] ----------------------------------------
     def _from_universal(self, x: torch.Tensor, ids: torch.Tensor) -> torch.Tensor:
@@ -257,21 +307,8 @@ class OpfaEncodeJointsStep(_HandSpace, ProcessorStep):
             return torch.cat([x[..., :w], x[..., u:]], dim=-1)
         return torch.cat([x[..., :w], self.space.from_universal(self, x[..., w:u], ids)], dim=-1)
 
-    @cached_property
-    def _native_order(self) -> list[int]:
-        """Dataset column of each of `hand`'s spec joints (built once: it runs on every batch)."""
-        return [
-            self.native_joint_names.index(j)
-            for j in self.model(self.embodiments.index(self.hand)).joint_names
-        ]
-
     def get_config(self) -> dict[str, Any]:
-        return {
-            **self.config_dict(),
-            "hand": self.hand,
-            "native_joint_names": list(self.native_joint_names),
-            "use_cached_latents": self.use_cached_latents,
-        }
+        return {**self.config_dict(), "hand": self.hand, "use_cached_latents": self.use_cached_latents}
 
     def state_dict(self) -> dict[str, torch.Tensor]:
         return self.galr_state("encoder.")
@@ -290,7 +327,8 @@ class OpfaEncodeJointsStep(_HandSpace, ProcessorStep):
 @ProcessorStepRegistry.register("opfa_decode_joints")
 @dataclass
 class OpfaDecodeJointsStep(_HandSpace, ProcessorStep):
-    """Policy-space actions (B, [T], wrist + ...) -> wrist + the attached hand's joints in spec order."""
+    """Policy-space actions (B, [T], body + ...) -> the attached robot's action entries, in its order and
+    units (its joint map inverted); for this package's env, the wrist, then the joints in spec order."""
 
     hand: str | None = None
     """The attached hand, when given (not saved); else the one its preprocessor saw."""
@@ -301,7 +339,7 @@ class OpfaDecodeJointsStep(_HandSpace, ProcessorStep):
         index = self.single_id(embodiment_ids(self.link, len(action), self.embodiments, self.hand))
         wrist, rest = action[..., : self.wrist_dim], action[..., self.wrist_dim :]
         q = self.space.to_joints(self, index, rest)
-        new[TransitionKey.ACTION] = torch.cat([wrist, q.to(wrist.dtype)], dim=-1)
+        new[TransitionKey.ACTION] = self.to_robot(index, wrist, q, _in_spec_order(self.link))
         return new
 
     def get_config(self) -> dict[str, Any]:
@@ -342,6 +380,12 @@ def embodiment_ids(link: str, batch: int, embodiments: list[str], hand: str | No
         "this postprocessor needs to know which hand produced the actions: run its preprocessor (same "
         f"link '{link}') on the observation first, or give it the hand"
     )
+
+
+def _in_spec_order(link: str) -> bool:
+    """Whether the observations the linked preprocessor saw last were in spec order (this package's env),
+    so the action goes back the same way; a robot's own entries otherwise."""
+    return {encoder.last_in_spec_order for encoder in _live_encoders(link)} == {True}
 
 
 def _live_encoders(link: str) -> list[OpfaEncodeJointsStep]:

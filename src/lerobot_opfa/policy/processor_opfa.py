@@ -32,6 +32,7 @@ from lerobot.utils.constants import ACTION, OBS_STATE
 
 from lerobot_opfa.datasets import io as dataset_io
 from lerobot_opfa.datasets.io import read_columns
+from lerobot_opfa.datasets.joint_map import JointMap
 from lerobot_opfa.datasets.layout import DatasetLayout, opfa_record, read_layout
 from lerobot_opfa.datasets.statistics import (
     column_statistics,
@@ -40,7 +41,7 @@ from lerobot_opfa.datasets.statistics import (
     read_statistics,
     statistics_of,
 )
-from lerobot_opfa.features import OBS_EMBODIMENT
+from lerobot_opfa.features import OBS_EMBODIMENT, OBS_HAND
 from lerobot_opfa.galr import checkpoints
 from lerobot_opfa.galr.frozen import galr_fingerprint, known_hand_refs, load_galr
 from lerobot_opfa.galr.model import Galr
@@ -103,7 +104,13 @@ def resolve_config(config: OpfaConfig, dataset_meta: Any) -> tuple[DatasetLayout
         dataset_meta.robot_type,
         dataset_meta.root,
         hands=known_hand_refs(galr),
+        joint_map=JointMap.load(config.joint_map) if config.joint_map else None,
     )
+    if config.joint_map and layout.kind == "merged":
+        raise ValueError(
+            f"--policy.joint_map: {dataset_meta.root} is a merged dataset, which holds the joint maps of its "
+            "inputs; give the map to `lerobot-opfa dataset merge --joint-maps` instead"
+        )
     if config.embodiments and config.embodiments != layout.embodiments:
         raise ValueError(
             f"this policy was built for embodiments {config.embodiments}; "
@@ -175,6 +182,12 @@ def _frame_statistics(
 ) -> Fitted:
     columns = [OBS_STATE, ACTION] + ([OBS_EMBODIMENT] if layout.kind == "merged" else [])
     frames = {k: torch.tensor(v, dtype=torch.float32) for k, v in read_columns(root, columns).items()}
+    if layout.kind == "native":  # the body entries, then the joints in spec order and units
+        joint_map = layout.joint_maps[0]
+        for key in (OBS_STATE, ACTION):
+            body, q = joint_map.split(frames[key], key)
+            encoder.model(0).check_within_limits(q, f"{root} ({key}, through {joint_map.source})")
+            frames[key] = torch.cat([body, q], dim=1)
     n = len(frames[OBS_STATE])
     subsample = config.space.uses_galr and not encoder.use_cached_latents
     if subsample and n > STATS_MAX_ENCODED_FRAMES:
@@ -182,7 +195,8 @@ def _frame_statistics(
         frames = {k: v[keep] for k, v in frames.items()}
 
     def encode(rows: torch.Tensor, ids: torch.Tensor | None, action: torch.Tensor | None = None):
-        observation = {OBS_STATE: rows} | ({OBS_EMBODIMENT: ids} if layout.kind == "merged" else {})
+        where = {OBS_EMBODIMENT: ids} if layout.kind == "merged" else {OBS_HAND: layout.embodiments[0]}
+        observation = {OBS_STATE: rows} | where
         return encoder(create_transition(observation=observation, action=action))
 
     ids = frames[OBS_EMBODIMENT].long() if layout.kind == "merged" else None
@@ -194,8 +208,7 @@ def _frame_statistics(
         universal = list(UNIVERSAL_JOINT_NAMES)
     else:
         raw = frames[OBS_STATE]
-        spec = encoder.model(0).spec
-        universal = [spec.joints[j] for j in layout.joint_names]
+        universal = encoder.model(0).spec.universal_names
     floor = noise_floor(
         lambda rows, row_ids: encode(rows, row_ids)[TransitionKey.OBSERVATION][OBS_STATE],
         raw,
@@ -205,7 +218,7 @@ def _frame_statistics(
         len(config.embodiments),
         pooled,
     )
-    encoder.last_ids = None
+    encoder.forget_last_batch()
     n_embodiments = len(config.embodiments)
     state = column_statistics(out[TransitionKey.OBSERVATION][OBS_STATE], ids, n_embodiments)
     return state, column_statistics(out[TransitionKey.ACTION], ids, n_embodiments), floor
@@ -252,12 +265,12 @@ def make_opfa_pre_post_processors(
         wrist_dim=len(config.wrist_names),
         galr_config=dataclasses.asdict(galr.config) if galr is not None else None,
         link=uuid.uuid4().hex,
+        joint_maps=[m.to_dict() for m in layout.joint_maps],
         galr=galr,
     )
     encoder = OpfaEncodeJointsStep(
         **shared,
         hand=layout.embodiments[0] if layout.kind == "native" else None,
-        native_joint_names=list(layout.joint_names),
         use_cached_latents=cached,
     )
     tables = _policy_space_tables(config, layout, encoder, Path(meta.root))

@@ -1,0 +1,295 @@
+"""Joint maps: which entries of a robot's `observation.state` / `action` are which joint of a hand, in which
+units. The one place where a robot's vectors meet the policy's: the processors split observations with it
+on the way in and join actions with it on the way out, and save it, so a deployed policy speaks the robot's
+entries (LeRobot's `lerobot-rollout` hands the action to the robot by position).
+
+A map is a small YAML file (docs/usage.md):
+
+    hand: leap                      # a built-in name, or a spec.yaml path relative to this file
+    joints:                         # dataset entry: the spec joint it is (same units) ...
+      right_hand.ring_mcp_side.pos: ring_mcp_abd
+      right_hand.ring_mcp_fwd.pos: {joint: ring_mcp_flex, scale: 0.0174533, offset: 0.0}  # ... or in degrees
+    drop: [right_hand.ring_current]  # observation-only entries the policy does not read (optional)
+
+A spec joint's value is `scale * entry + offset`. Every other entry is body state (an arm's joints, a wrist
+pose in any convention) that the policy models as it is. A dataset whose hand entries are named after the
+spec's joints needs no file (`JointMap.named_after`). One hand per frame; a second would be a second list of
+joints here, nothing elsewhere.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import re
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import torch
+import yaml
+
+from lerobot_opfa.hands.registry import builtin_hands, hand_ref, load_spec
+from lerobot_opfa.hands.spec import HandSpec
+from lerobot_opfa.hands.universal import FINGERS
+
+
+class JointMapError(ValueError):
+    """A joint map that does not fit its dataset or its hand; the message names the map and the entry."""
+
+
+@dataclass(frozen=True)
+class MappedJoint:
+    joint: str
+    """The spec's (model) joint name."""
+    scale: float = 1.0
+    offset: float = 0.0
+
+
+@dataclass(frozen=True)
+class JointMap:
+    hand: str
+    """What `load_hand` takes: a built-in name or a spec path."""
+    joints: dict[str, MappedJoint]
+    """Dataset entry -> the spec joint it holds."""
+    drop: tuple[str, ...] = ()
+    source: str = "joint map"
+    """Where the map came from, for messages."""
+    state_names: tuple[str, ...] = ()
+    action_names: tuple[str, ...] = ()
+    """The robot's entries the map is bound to (`bind`); empty for a map as read from its file."""
+    _columns: dict = field(default_factory=dict, compare=False, repr=False)
+
+    # --- reading and writing ----------------------------------------------------------------------------
+    @classmethod
+    def load(cls, path: str | Path) -> JointMap:
+        path = Path(path)
+        if not path.is_file():
+            raise JointMapError(f"joint map {path} not found")
+        try:
+            raw = yaml.safe_load(path.read_text())
+        except yaml.YAMLError as err:
+            raise JointMapError(f"joint map {path} is not valid YAML: {str(err).splitlines()[0]}") from None
+        hand = raw.get("hand") if isinstance(raw, dict) else None
+        if isinstance(hand, str) and hand not in builtin_hands() and not Path(hand).is_absolute():
+            raw["hand"] = str((path.parent / hand).resolve())
+        return cls.from_dict(raw, str(path))
+
+    @classmethod
+    def from_dict(cls, raw, source: str = "joint map") -> JointMap:
+        if not isinstance(raw, dict) or not isinstance(raw.get("joints"), dict) or not raw["joints"]:
+            raise JointMapError(f"{source}: needs a mapping 'joints' of dataset entry -> spec joint")
+        if not isinstance(raw.get("hand"), str):
+            raise JointMapError(f"{source}: needs 'hand', a built-in hand's name or a spec.yaml path")
+        joints = {
+            str(entry): _mapped_joint(value, f"{source}: entry '{entry}'")
+            for entry, value in raw["joints"].items()
+        }
+        drop = raw.get("drop") or []
+        if not isinstance(drop, list):
+            raise JointMapError(f"{source}: 'drop' must be a list of entry names")
+        unknown = set(raw) - {"hand", "joints", "drop", "state_names", "action_names"}
+        if unknown:
+            raise JointMapError(f"{source}: unknown field(s) {sorted(unknown)} (hand, joints, drop)")
+        return cls(
+            hand=raw["hand"],
+            joints=joints,
+            drop=tuple(map(str, drop)),
+            source=source,
+            state_names=tuple(raw.get("state_names", ())),
+            action_names=tuple(raw.get("action_names", ())),
+        )
+
+    def to_dict(self) -> dict:
+        """What a checkpoint or a merged dataset saves (with the names it is bound to)."""
+        return {
+            "hand": self.hand,
+            "joints": {
+                e: {"joint": j.joint, "scale": j.scale, "offset": j.offset} for e, j in self.joints.items()
+            },
+            "drop": list(self.drop),
+            "state_names": list(self.state_names),
+            "action_names": list(self.action_names),
+        }
+
+    @classmethod
+    def named_after(cls, spec: HandSpec, state_names: list[str], action_names: list[str]) -> JointMap:
+        """The map of a robot whose hand entries carry the spec's joint names, in the spec's units."""
+        return cls(
+            hand_ref(spec), {j: MappedJoint(j) for j in spec.actuated_joints}, source=f"hand '{spec.name}'"
+        ).bind(state_names, action_names)
+
+    # --- binding to a robot's entries -----------------------------------------------------------------
+    def bind(self, state_names: list[str], action_names: list[str]) -> JointMap:
+        """This map checked against a robot's (a dataset's) state and action entries and the hand's spec."""
+        state, action = list(map(str, state_names)), list(map(str, action_names))
+        spec = load_spec(self.hand)
+        for entry in self.joints:
+            for key, names in (("observation.state", state), ("action", action)):
+                if entry not in names:
+                    near = difflib.get_close_matches(entry, names, n=3)
+                    raise JointMapError(
+                        f"{self.source}: entry '{entry}' is not in the dataset's {key}"
+                        + (
+                            f" (closest: {', '.join(near)})"
+                            if near
+                            else f" ({len(names)} entries: {names[:8]} ...)"
+                        )
+                    )
+        held = [j.joint for j in self.joints.values()]
+        unknown = [j for j in held if j not in spec.joints]
+        twice = sorted({j for j in held if held.count(j) > 1})
+        missing = [j for j in spec.actuated_joints if j not in held]
+        if unknown or twice or missing:
+            raise JointMapError(
+                f"{self.source}: must name each joint of hand '{spec.name}' once "
+                f"({', '.join(spec.actuated_joints)}): unknown {unknown}, twice {twice}, missing {missing}"
+            )
+        for entry in self.drop:
+            if entry in self.joints or entry in action:
+                raise JointMapError(
+                    f"{self.source}: drop lists '{entry}', which is "
+                    + (
+                        "a joint of the map"
+                        if entry in self.joints
+                        else "an action entry (the robot needs it)"
+                    )
+                )
+            if entry not in state:
+                raise JointMapError(f"{self.source}: drop lists '{entry}', which is not in observation.state")
+        body = [n for n in action if n not in self.joints]
+        state_only = [n for n in state if n not in self.joints and n not in self.drop and n not in body]
+        if state_only:
+            raise JointMapError(
+                f"{self.source}: observation.state entries {state_only} are not in action; the policy's "
+                "state and action hold the same entries: list them under 'drop'"
+            )
+        return replace(self, state_names=tuple(state), action_names=tuple(action), _columns={})
+
+    @property
+    def body_names(self) -> list[str]:
+        """Entries besides the hand's joints, in the action's order (the policy models them as they are)."""
+        return [n for n in self.action_names if n not in self.joints]
+
+    @property
+    def spec(self) -> HandSpec:
+        return load_spec(self.hand)
+
+    def _indices(self, key: str) -> tuple[list[int], list[int], torch.Tensor, torch.Tensor]:
+        """(body columns, joint columns in spec order, scale, offset) of `key`'s vectors."""
+        if key not in self._columns:
+            if not self.action_names:
+                raise JointMapError(f"{self.source}: not bound to a robot's entries (JointMap.bind)")
+            names = self.names(key)
+            by_joint = {j.joint: (e, j) for e, j in self.joints.items()}
+            order = [by_joint[j] for j in self.spec.actuated_joints]
+            self._columns[key] = (
+                [names.index(n) for n in self.body_names],
+                [names.index(e) for e, _ in order],
+                torch.tensor([j.scale for _, j in order], dtype=torch.float64),
+                torch.tensor([j.offset for _, j in order], dtype=torch.float64),
+            )
+        return self._columns[key]
+
+    def names(self, key: str) -> list[str]:
+        """The robot's entries of `key` ("observation.state" or "action")."""
+        return list(self.state_names if key == "observation.state" else self.action_names)
+
+    def split(self, x: torch.Tensor, key: str) -> tuple[torch.Tensor, torch.Tensor]:
+        """(..., robot entries) of `key` ("observation.state" or "action") -> (body entries, the hand's joints
+        in spec order and units)."""
+        names = self.names(key)
+        if x.shape[-1] != len(names):
+            raise ValueError(
+                f"{key} has {x.shape[-1]} entries; the robot this policy was trained on has {len(names)} "
+                f"({self.source}: {', '.join(names[:6])} ...)"
+            )
+        body, columns, scale, offset = self._indices(key)
+        q = x[..., columns] * scale.to(x.device, x.dtype) + offset.to(x.device, x.dtype)
+        return x[..., body], q
+
+    def join(self, body: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
+        """(body entries, joints in spec order and units) -> (..., action entries) in the robot's order and
+        units: the inverse of `split` on actions."""
+        columns_body, columns, scale, offset = self._indices("action")
+        out = body.new_empty((*body.shape[:-1], len(self.action_names)))
+        out[..., columns_body] = body
+        out[..., columns] = ((q - offset.to(q.device, q.dtype)) / scale.to(q.device, q.dtype)).to(out.dtype)
+        return out
+
+
+def _mapped_joint(value, where: str) -> MappedJoint:
+    if isinstance(value, str):
+        return MappedJoint(value)
+    if (
+        not isinstance(value, dict)
+        or not isinstance(value.get("joint"), str)
+        or set(value) - {"joint", "scale", "offset"}
+    ):
+        raise JointMapError(
+            f"{where}: give a spec joint name or {{joint: NAME, scale: S, offset: O}}, got {value!r}"
+        )
+    try:
+        scale, offset = float(value.get("scale", 1.0)), float(value.get("offset", 0.0))
+    except (TypeError, ValueError):
+        raise JointMapError(f"{where}: scale and offset must be numbers, got {value!r}") from None
+    if not math.isfinite(scale) or not math.isfinite(offset) or scale == 0:
+        raise JointMapError(f"{where}: scale must be finite and non-zero and offset finite, got {value!r}")
+    return MappedJoint(value["joint"], scale, offset)
+
+
+# --- when names match no hand: the closest hand and the map to write --------------------------------------
+
+
+_SYNONYMS = {
+    **dict.fromkeys(("side", "abduction", "spread", "lateral", "ab"), "abd"),
+    **dict.fromkeys(("fwd", "forward", "flexion", "bend", "curl"), "flex"),
+    "pinky": "little",
+}
+"""Words vendors use for the universal table's motions (a LEAP plugin's `mcp_side` is `mcp_abd`)."""
+
+
+def _tokens(name: str) -> set[str]:
+    return {_SYNONYMS.get(t, t) for t in re.split(r"[^a-z0-9]+", name.lower()) if t}
+
+
+def _finger(name: str) -> str | None:
+    return next((t for t in _tokens(name) if t in FINGERS[1:]), None)
+
+
+def _structure(joint_fingers: list[str | None]) -> dict[str | None, int]:
+    return {f: joint_fingers.count(f) for f in set(joint_fingers)}
+
+
+def closest_hands(names: list[str], specs: list[HandSpec]) -> list[HandSpec]:
+    """The hands whose joint structure (joints per finger, then joint count, then shared words) is closest to
+    the entries'; several when they tie (LEAP and Allegro have the same joints)."""
+    entries = _structure([_finger(n) for n in names if _finger(n)])
+
+    def distance(spec: HandSpec) -> tuple[int, int, int]:
+        fingers = _structure([_finger(u) for u in spec.joints.values()])
+        per_finger = sum(abs(entries.get(f, 0) - fingers.get(f, 0)) for f in set(entries) | set(fingers) if f)
+        words = set().union(*map(_tokens, names))
+        shared = sum(len(words & (_tokens(j) | _tokens(u))) for j, u in spec.joints.items())
+        return per_finger, abs(len(names) - len(spec.joints)), -shared
+
+    best = min(map(distance, specs))
+    return [s for s in specs if distance(s) == best]
+
+
+def map_to_write(names: list[str], spec: HandSpec, alternatives: list[HandSpec] = ()) -> str:
+    """A joint map for `spec` pairing each joint with the entry of its finger whose name shares the most
+    words with it (in order where they tie): a start for the user to check line by line, as YAML."""
+    free = list(names)
+    others = (
+        f"  # or {', '.join(a.name for a in alternatives)}: the same joint structure" if alternatives else ""
+    )
+    lines = [f"hand: {hand_ref(spec)}{others}", "joints:"]
+    for joint, universal in spec.joints.items():
+        finger = universal.split("_")[0]
+        candidates = [n for n in free if _finger(n) == finger] or free
+        if not candidates:
+            break
+        best = max(candidates, key=lambda n: len(_tokens(n) & (_tokens(joint) | _tokens(universal))))
+        free.remove(best)
+        lines.append(f"  {best}: {joint}")
+    return "\n".join(lines)

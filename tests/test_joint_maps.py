@@ -1,0 +1,284 @@
+"""Datasets as a LeRobot robot records them: entries under the robot's names, in its order and units, an arm
+before the hand, observation-only entries; joint maps applied on the way in and inverted on the way out."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from lerobot.datasets.dataset_metadata import LeRobotDatasetMetadata
+from lerobot.datasets.lerobot_dataset import LeRobotDataset
+from lerobot.policies.factory import make_pre_post_processors
+from lerobot.processor import TransitionKey, create_transition
+from lerobot.processor.converters import batch_to_transition
+from lerobot.utils.constants import ACTION, OBS_STATE
+from test_policy import ENV, batch_of, make_policy, save_galr
+
+from lerobot_opfa import cli
+from lerobot_opfa.datasets.io import read_columns
+from lerobot_opfa.datasets.joint_map import JointMap, JointMapError
+from lerobot_opfa.datasets.synthetic import write_synthetic_dataset
+from lerobot_opfa.features import OBS_POINTCLOUD
+from lerobot_opfa.hands import load_hand
+from lerobot_opfa.policy.modeling_opfa import OpfaPolicy
+
+N_POINTS = 32
+MOTIONS = (("mcp_side", "mcp_abd"), ("mcp_fwd", "mcp_flex"), ("pip", "pip_flex"), ("dip", "dip_flex"))
+GHAND_FINGERS = {  # the LEAP plugin's entries, in its order (ring, middle, index, thumb) -> the spec's joints
+    **{
+        f"right_hand.{f}_{motion}.pos": f"{f}_{joint}"
+        for f in ("ring", "middle", "index")
+        for motion, joint in MOTIONS
+    },
+    "right_hand.thumb_cmc_rot.pos": "thumb_cmc_yaw",
+    "right_hand.thumb_cmc_side.pos": "thumb_cmc_abd",
+    "right_hand.thumb_mcp_fwd.pos": "thumb_mcp_flex",
+    "right_hand.thumb_ip_flex.pos": "thumb_ip_flex",
+}  # fmt: skip
+ARM = [f"arm.joint_{i}.pos" for i in range(1, 8)]
+INSPIRE = {  # RH56-style actuators, 0 (closed) .. 1000 (open)
+    "hand.thumb_rotate": "thumb_yaw",
+    "hand.little": "little_mcp_flex",
+    "hand.ring": "ring_mcp_flex",
+    "hand.middle": "middle_mcp_flex",
+    "hand.index": "index_mcp_flex",
+    "hand.thumb_bend": "thumb_bend",
+}
+
+
+def robot_dataset(source: Path, root: Path, robot_type: str, entries: dict[str, str], units, body: list[str],
+                  state_only: list[str] = ()) -> Path:  # fmt: skip
+    """A copy of a synthetic dataset of a hand as a robot records it, written with LeRobot's own writer:
+    `body` entries (the wrist's values, padded with a ramp to their count), then the hand's joints under
+    `entries` names in that order, in the robot's units (`units[joint] = (scale, offset)`: joint = scale *
+    entry + offset), the `state_only` entries only in the state, and an RGB camera."""
+    hand = load_hand(LeRobotDatasetMetadata("local/x", root=source).robot_type)
+    frames = read_columns(source, [OBS_STATE, ACTION, OBS_POINTCLOUD, "episode_index"])
+    names = [*body, *entries]
+    state_names = names + list(state_only)
+    image = {"dtype": "image", "shape": (8, 8, 3), "names": ["height", "width", "channels"]}
+    features = {
+        OBS_STATE: {"dtype": "float32", "shape": (len(state_names),), "names": state_names},
+        ACTION: {"dtype": "float32", "shape": (len(names),), "names": names},
+        OBS_POINTCLOUD: {"dtype": "float32", "shape": (3 * N_POINTS,), "names": None},
+        "observation.images.front": image,
+    }
+    dataset = LeRobotDataset.create(
+        f"local/{root.name}", 10, features=features, root=root, robot_type=robot_type, use_videos=False
+    )
+
+    def to_robot(values: np.ndarray) -> np.ndarray:
+        wrist = values[:, :6]
+        padded = np.concatenate(
+            [wrist, np.linspace(0, 1, len(values))[:, None].repeat(max(0, len(body) - 6), 1)], 1
+        )
+        columns = [padded[:, : len(body)]]
+        for joint in entries.values():
+            scale, offset = units.get(joint, (1.0, 0.0))
+            columns.append(((values[:, 6 + hand.joint_names.index(joint)] - offset) / scale)[:, None])
+        return np.concatenate(columns, 1).astype(np.float32)
+
+    state, action = to_robot(frames[OBS_STATE]), to_robot(frames[ACTION])
+    state = np.concatenate([state, np.full((len(state), len(state_only)), 0.25, np.float32)], 1)
+    for episode in np.unique(frames["episode_index"]):
+        for row in np.flatnonzero(frames["episode_index"] == episode):
+            dataset.add_frame({
+                OBS_STATE: state[row], ACTION: action[row], OBS_POINTCLOUD: frames[OBS_POINTCLOUD][row],
+                "observation.images.front": np.full((8, 8, 3), row % 255, np.uint8), "task": "reach",
+            })  # fmt: skip
+        dataset.save_episode()
+    dataset.finalize()
+    return root
+
+
+def write_map(path: Path, hand: str, entries: dict[str, str], units=None, drop=()) -> Path:
+    units = units or {}
+    lines = [f"hand: {hand}", "joints:"]
+    for entry, joint in entries.items():
+        scale, offset = units.get(joint, (1.0, 0.0))
+        lines.append(f"  {entry}: {{joint: {joint}, scale: {scale!r}, offset: {offset!r}}}")
+    if drop:
+        lines.append(f"drop: [{', '.join(drop)}]")
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def inspire_units() -> dict[str, tuple[float, float]]:
+    """0..1000 (open .. closed reversed): joint = upper + entry * (lower - upper) / 1000."""
+    hand = load_hand("inspire")
+    return {
+        j: (float(lo - hi) / 1000, float(hi))
+        for j, lo, hi in zip(hand.joint_names, hand.lower.tolist(), hand.upper.tolist(), strict=True)
+    }
+
+
+@pytest.fixture(scope="module")
+def rigs(tmp_path_factory) -> Path:
+    """A tiny GaLR, a LEAP plugin's dataset (16 `right_hand.*.pos` entries, radians, no arm) and an arm with
+    an Inspire hand (7 arm joints, then 0-1000 actuators, and a current only in the state)."""
+    root = tmp_path_factory.mktemp("rigs")
+    save_galr(root / "galr", ["umi", "inspire", "leap"])
+    write_synthetic_dataset(root / "leap_sim", "leap", episodes=2, frames=12, n_points=N_POINTS, seed=3)
+    write_synthetic_dataset(root / "inspire_sim", "inspire", episodes=2, frames=12, n_points=N_POINTS, seed=4)
+    robot_dataset(root / "leap_sim", root / "ghand", "ghand", GHAND_FINGERS, {}, body=[])
+    units = inspire_units()
+    robot_dataset(
+        root / "inspire_sim", root / "arm_inspire", "arm_inspire", INSPIRE, units, ARM, ["hand.current"]
+    )
+    write_map(root / "ghand_map.yaml", "leap", GHAND_FINGERS)
+    write_map(root / "arm_inspire_map.yaml", "inspire", INSPIRE, units, drop=["hand.current"])
+    return root
+
+
+def test_names_that_match_no_hand_name_the_closest_hand_and_the_map_to_write(rigs, tmp_path, capsys):
+    merge = ["dataset", "merge", "--inputs", str(rigs / "ghand"), "--galr", str(rigs / "galr")]
+    assert cli.main([*merge, "--output", str(tmp_path / "m")]) == 2
+    err = capsys.readouterr().err
+    assert "closest by joint structure: 'allegro', 'leap' (16 joints" in err  # the same joints, both named
+    suggested = err[err.index("hand: allegro") :].strip().splitlines()
+    assert suggested[0] == "hand: allegro  # or leap: the same joint structure"
+    assert "  right_hand.ring_mcp_side.pos: ring_mcp_abd" in suggested
+    # the user picks the hand they have; every pairing of the suggestion is right for this plugin's names
+    assert dict(line.strip().split(": ") for line in suggested[2:]) == GHAND_FINGERS
+    (tmp_path / "suggested.yaml").write_text("\n".join(["hand: leap", *suggested[1:]]) + "\n")
+    assert (
+        cli.main([*merge, "--output", str(tmp_path / "m"), "--joint-maps", str(tmp_path / "suggested.yaml")])
+        == 0
+    )
+    merged = read_columns(tmp_path / "m", [OBS_STATE])[OBS_STATE]
+    sim = read_columns(rigs / "leap_sim", [OBS_STATE])[OBS_STATE]
+    leap = load_hand("leap")
+    universal = leap.to_universal(torch.tensor(sim[:, 6:], dtype=torch.float32)).numpy()
+    assert np.allclose(merged[:, : universal.shape[1]], universal, atol=1e-6), (
+        "the merge reads the map's joints"
+    )
+
+
+def test_map_errors_are_one_line_naming_the_map_and_the_entry(rigs, tmp_path):
+    meta = LeRobotDatasetMetadata("local/arm_inspire", root=rigs / "arm_inspire")
+    state, action = meta.features[OBS_STATE]["names"], meta.features[ACTION]["names"]
+    good = JointMap.load(rigs / "arm_inspire_map.yaml")
+    assert good.bind(state, action).body_names == ARM
+    without_thumb = {k: v for k, v in INSPIRE.items() if k != "hand.thumb_rotate"}
+    current = ["hand.current"]
+    cases = [
+        (
+            "entry 'hand.thumb_rotat' is not in the dataset's observation.state \\(closest: hand.thumb_rot",
+            dict(entries={**without_thumb, "hand.thumb_rotat": "thumb_yaw"}, drop=current),
+        ),
+        (
+            "must name each joint of hand 'inspire' once .*missing \\['thumb_yaw'\\]",
+            dict(entries=without_thumb, drop=current),
+        ),
+        (
+            "unknown \\['thumb_roll'\\]",
+            dict(entries={**INSPIRE, "hand.thumb_rotate": "thumb_roll"}, drop=current),
+        ),
+        ("observation.state entries \\['hand.current'\\] are not in action", dict(entries=INSPIRE)),
+        (
+            "drop lists 'arm.joint_1.pos', which is an action entry",
+            dict(entries=INSPIRE, drop=[*current, "arm.joint_1.pos"]),
+        ),
+    ]
+    for i, (message, case) in enumerate(cases):
+        path = write_map(tmp_path / f"map{i}.yaml", "inspire", case["entries"], drop=case.get("drop", ()))
+        with pytest.raises(JointMapError, match=message) as error:
+            JointMap.load(path).bind(state, action)
+        assert "\n" not in str(error.value) and str(path) in str(error.value)
+    (tmp_path / "scale.yaml").write_text(
+        "hand: inspire\njoints:\n  hand.index: {joint: index_mcp_flex, scale: 0}\n"
+    )
+    with pytest.raises(JointMapError, match="scale must be finite and non-zero"):
+        JointMap.load(tmp_path / "scale.yaml")
+    (tmp_path / "bad.yaml").write_text("hand: inspire\njoints: [\n")
+    with pytest.raises(JointMapError, match="bad.yaml is not valid YAML"):
+        JointMap.load(tmp_path / "bad.yaml")
+
+
+def test_split_and_join_are_inverse_and_apply_the_units(rigs):
+    meta = LeRobotDatasetMetadata("local/arm_inspire", root=rigs / "arm_inspire")
+    joint_map = JointMap.load(rigs / "arm_inspire_map.yaml").bind(
+        meta.features[OBS_STATE]["names"], meta.features[ACTION]["names"]
+    )
+    action = torch.rand(5, len(ARM) + len(INSPIRE), dtype=torch.float64) * 1000
+    body, q = joint_map.split(action, ACTION)
+    hand, units = load_hand("inspire"), inspire_units()
+    entry = {joint: action[:, len(ARM) + i] for i, joint in enumerate(INSPIRE.values())}
+    expected = torch.stack([units[j][0] * entry[j] + units[j][1] for j in hand.joint_names], dim=1)
+    assert torch.equal(body, action[:, : len(ARM)]) and torch.allclose(q, expected)
+    assert torch.allclose(joint_map.join(body, q), action)
+    state = torch.cat([action, torch.full((5, 1), 7.0, dtype=torch.float64)], dim=1)  # the current, dropped
+    assert torch.allclose(joint_map.split(state, OBS_STATE)[1], q)
+
+
+def _through_processors(pre, post, frames) -> tuple[torch.Tensor, torch.Tensor]:
+    transition = batch_to_transition(batch_of(frames, list(range(0, len(frames), 5))))
+    original = transition[TransitionKey.ACTION].clone()
+    for step in pre.steps:
+        transition = step(transition)
+    back = create_transition(action=transition[TransitionKey.ACTION])
+    for step in post.steps:
+        back = step(back)
+    return original, back[TransitionKey.ACTION]
+
+
+@pytest.mark.parametrize("space", ["raw", "per_embodiment", "galr"])
+@pytest.mark.parametrize("rig", ["ghand", "arm_inspire"])
+def test_a_robots_actions_come_back_in_its_entries_order_and_units(rigs, rig, space):
+    _, pre, post, frames = make_policy(rigs, rig, action_space=space, joint_map=str(rigs / f"{rig}_map.yaml"))
+    original, back = _through_processors(pre, post, frames)
+    assert back.shape == original.shape
+    if space != "galr":  # exact; an untrained tiny GaLR decodes its latents only roughly
+        assert torch.allclose(back, original, atol=1e-3 * original.abs().max())
+    body = len(ARM) if rig == "arm_inspire" else 0
+    assert torch.allclose(back[..., :body], original[..., :body], atol=1e-4), "the arm's joints as recorded"
+
+
+def test_recorded_units_beyond_the_hands_limits_are_refused_before_training(rigs, tmp_path):
+    wrong = write_map(
+        tmp_path / "radians.yaml", "inspire", INSPIRE, drop=["hand.current"]
+    )  # 0..1000 read as rad
+    with pytest.raises(ValueError, match=r"through .*radians.yaml.*outside its limits .* frames \(worst"):
+        make_policy(rigs, "arm_inspire", action_space="raw", joint_map=str(wrong))
+
+
+def test_lerobot_train_on_a_robots_dataset_through_a_map_then_the_checkpoint_drives_that_robot(
+    rigs, tmp_path
+):
+    """`lerobot-train --policy.joint_map` on the arm + Inspire dataset as recorded (no renaming, no merge);
+    the checkpoint alone (no map file) turns the robot's observations into actions in its entries."""
+    out = tmp_path / "train"
+    command = [
+        str(Path(sys.executable).parent / "lerobot-train"), "--policy.type=opfa", "--policy.action_space=raw",
+        f"--policy.joint_map={rigs / 'arm_inspire_map.yaml'}", "--dataset.repo_id=local/arm_inspire",
+        f"--dataset.root={rigs / 'arm_inspire'}", "--policy.device=cpu", "--policy.push_to_hub=false",
+        "--policy.down_dims=[16,32]", "--policy.horizon=8", "--policy.n_action_steps=4",
+        "--policy.pointcloud_widths=[16,32]", "--policy.pointcloud_feature_dim=16", "--policy.n_groups=4",
+        "--steps=2", "--batch_size=4", "--save_freq=2", "--log_freq=1", "--num_workers=0",
+        f"--output_dir={out}", "--wandb.enable=false",
+    ]  # fmt: skip
+    result = subprocess.run(command, env=ENV, capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    (rigs / "arm_inspire_map.yaml").rename(tmp_path / "moved.yaml")  # deployment needs no map file
+    try:
+        checkpoint = out / "checkpoints" / "last" / "pretrained_model"
+        policy = OpfaPolicy.from_pretrained(checkpoint)
+        pre, post = make_pre_post_processors(policy.config, pretrained_path=str(checkpoint))
+        frames = LeRobotDataset("local/arm_inspire", root=rigs / "arm_inspire")
+        frame = frames[3]
+        observation = {OBS_STATE: frame[OBS_STATE], OBS_POINTCLOUD: frame[OBS_POINTCLOUD]}
+        with torch.no_grad():
+            action = post(policy.select_action(pre(observation)))
+        assert action.shape == (1, len(ARM) + len(INSPIRE))
+        assert ((action[0, len(ARM) :] > -50) & (action[0, len(ARM) :] < 1050)).all(), "0-1000 units out"
+        with pytest.raises(
+            ValueError,
+            match="observation.state has 12 entries; the 'inspire' robot this policy was trained on has 14",
+        ):
+            pre({OBS_STATE: frame[OBS_STATE][:12], OBS_POINTCLOUD: frame[OBS_POINTCLOUD]})
+    finally:
+        (tmp_path / "moved.yaml").rename(rigs / "arm_inspire_map.yaml")
