@@ -363,3 +363,87 @@ def test_the_cloud_guard_reads_a_history_of_clouds():
     history[1, 0, 5 * 3] = torch.inf
     with pytest.raises(ValueError, match="not finite .* at point 5"):
         step.observation({"observation.pointcloud": history})
+
+
+# --- found by benchmarks/probe_user_errors.py ------------------------------------------------------
+def test_overwrite_replaces_only_a_dataset(datasets, tmp_path, capsys):
+    notes = tmp_path / "notes"
+    notes.mkdir()
+    (notes / "thesis.tex").write_text("months of work")
+    argv = ["dataset", "merge", "--inputs", str(datasets / "umi"), "--output", str(notes), "--overwrite"]
+    assert "exists and is not a LeRobotDataset; --overwrite replaces only a dataset" in _error(capsys, argv)
+    assert (notes / "thesis.tex").read_text() == "months of work"
+
+
+@pytest.mark.parametrize("output", [".", "z"])
+def test_latent_never_writes_over_or_into_its_input(datasets, tmp_path, capsys, output):
+    source = _copy(datasets / "umi", tmp_path / "mg")
+    before = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*"))
+    argv = ["dataset", "latent", "--input", str(source), "--output", str(source / output), "--overwrite"]
+    assert "would write over the input" in _error(capsys, argv)
+    assert sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*")) == before
+
+
+def test_merge_refuses_non_finite_body_entries(datasets, tmp_path, capsys):
+    bad = _copy(datasets / "umi", tmp_path / "umi")
+    _set_state(bad, 1, float("inf"), slice(3, 5))
+    err = _error(capsys, ["dataset", "merge", "--inputs", str(bad), "--output", str(tmp_path / "m")])
+    assert (
+        f"observation.state is not finite (NaN or inf) in 2 of 12 frames, first in entry '{WRIST_NAMES[1]}'"
+        in err
+    )
+
+
+@pytest.mark.parametrize("part", ["meta/episodes", "data"])
+def test_a_dataset_folder_missing_its_episodes_or_data_is_one_line(datasets, tmp_path, capsys, part):
+    bad = _copy(datasets / "umi", tmp_path / "umi")
+    shutil.rmtree(bad / part)
+    err = _error(capsys, ["dataset", "merge", "--inputs", str(bad), "--output", str(tmp_path / "m")])
+    assert f"{bad}: a LeRobotDataset folder without {part}/*.parquet" in err
+
+
+def test_train_on_a_dataset_root_that_does_not_exist_is_one_line(tmp_path, capsys):
+    root = tmp_path / "typo"
+    err = _error(
+        capsys, ["train", "--policy.type=opfa", "--dataset.repo_id=local/typo", f"--dataset.root={root}"]
+    )
+    assert f"--dataset.root {root} does not exist" in err
+
+
+def test_merging_a_latent_dataset_says_what_it_is(datasets, tiny_galr, tmp_path, capsys):
+    inputs = [str(datasets / "umi"), str(datasets / "inspire")]
+    assert cli.main(["dataset", "merge", "--inputs", *inputs, "--output", str(tmp_path / "m"), "--galr",
+                     str(tiny_galr)]) == 0  # fmt: skip
+    assert (
+        cli.main(["dataset", "latent", "--input", str(tmp_path / "m"), "--output", str(tmp_path / "z")]) == 0
+    )
+    err = _error(
+        capsys, ["dataset", "merge", "--inputs", str(tmp_path / "z"), "--output", str(tmp_path / "m2")]
+    )
+    assert f"{tmp_path / 'z'} is a latent dataset" in err
+
+
+def test_galr_command_inputs_of_the_wrong_kind_are_one_line(tiny_galr, tmp_path, capsys):
+    np.save(tmp_path / "q.npy", np.array(["a", None], dtype=object), allow_pickle=True)
+    embed = [
+        "galr",
+        "embed",
+        "--checkpoint",
+        str(tiny_galr),
+        "--hand",
+        "inspire",
+        "--out",
+        str(tmp_path / "z"),
+    ]
+    assert f"{tmp_path / 'q.npy'} is not a .npy array" in _error(
+        capsys, [*embed, "--joints", str(tmp_path / "q.npy")]
+    )
+    err = _error(
+        capsys, ["galr", "pretrain", "--model", "latent_dim=four", "--output-dir", str(tmp_path / "r")]
+    )
+    assert "--model 'latent_dim=four': latent_dim takes int values" in err
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "metrics.jsonl").write_text('{"step": 1, "loss": 0.5}\n')
+    err = _error(capsys, ["galr", "curves", str(run), "--out", str(tmp_path / "c.png")])
+    assert "has no validation rows yet" in err

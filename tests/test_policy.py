@@ -456,6 +456,32 @@ def test_cloud_guard_refuses_nan_and_a_size_other_than_the_trained_one(data):
             pre({**observation, OBS_POINTCLOUD: torch.zeros(n_points * 3)})
 
 
+def test_a_robot_state_beyond_its_joint_limits_a_missing_or_unflattened_cloud_are_errors(data):
+    policy, pre, post, _ = make_policy(data, "inspire", action_space="raw")
+    observation = native_observation("inspire", torch.zeros(32 * 3))
+    state = observation["observation.state"].clone()
+    state[6 + load_hand("inspire").joint_names.index("index_mcp_flex")] = 50.0  # limit 1.47 rad
+    with pytest.raises(ValueError, match=r"joint 'index_mcp_flex' of hand 'inspire' is outside .*worst 50"):
+        pre({**observation, "observation.state": state})
+    with pytest.raises(ValueError, match=r"has shape \(32, 3\); give it flattened: \(\.\.\., 96\)"):
+        pre({**observation, OBS_POINTCLOUD: torch.zeros(32, 3)})
+    with pytest.raises(ValueError, match=r"the observation has no observation.pointcloud \(it has "):
+        pre({k: v for k, v in observation.items() if k != OBS_POINTCLOUD})
+
+
+def test_convert_io_refuses_an_opfa_checkpoint_and_a_missing_folder(data, tmp_path, capsys):
+    policy, _, _, _ = make_policy(data, "inspire", action_space="raw")
+    policy.save_pretrained(tmp_path / "opfa")
+    convert = ["policy", "convert-io", "--galr", str(data / "galr"), "--output", str(tmp_path / "out")]
+    for folder, message in [
+        ("opfa", "is an opfa policy"),
+        ("nowhere", "not a checkpoint folder (no config.json"),
+    ]:
+        assert cli.main([*convert, "--policy", str(tmp_path / folder)]) == 2
+        assert message in capsys.readouterr().err.strip().splitlines()[-1]
+    assert not (tmp_path / "out").exists()
+
+
 def test_a_one_hand_postprocessor_acts_before_its_preprocessor_has_run(data):
     policy, pre, post, _ = make_policy(data, "inspire", action_space="raw")
     action = post(torch.zeros(1, 6 + 6))

@@ -47,6 +47,7 @@ def train(argv: list[str]) -> None:
     slower). See benchmarks/bench_training.py."""
     import draccus
     import torch
+    from huggingface_hub import constants
     from lerobot.scripts import lerobot_train
 
     from lerobot_opfa.datasets.io import check_dataset_folder
@@ -54,6 +55,10 @@ def train(argv: list[str]) -> None:
     root = next((a.split("=", 1)[1] for a in argv if a.startswith("--dataset.root=")), None)
     if root is not None and Path(root).is_dir():
         check_dataset_folder(root)
+    elif root is not None and constants.HF_HUB_OFFLINE:
+        raise ValueError(
+            f"--dataset.root {root} does not exist (and the Hub, to download into it, is offline)"
+        )
     if not any(a == "--num_workers" or a.startswith("--num_workers=") for a in argv):
         argv = [*argv, "--num_workers=0"]
     if "OMP_NUM_THREADS" not in os.environ:
@@ -88,10 +93,6 @@ def _parse_showing_cause(parse):
             raise ValueError(f"--{flag}: {cause}" if flag else str(cause)) from None
 
     return parse_with_cause
-
-
-def _cause(err: BaseException) -> BaseException | None:
-    return err.__cause__ or err.__context__
 
 
 def _reuse_freed_memory() -> None:

@@ -37,6 +37,26 @@ def check_dataset_folder(root: Path | str) -> None:
         raise ValueError(f"{root}: not a LeRobotDataset folder (no meta/info.json)")
     for path in sorted((root / "meta").glob("*.json")):
         read_json(path)
+    for part in ("meta/episodes", "data"):
+        if not any((root / part).rglob("*.parquet")):
+            raise ValueError(
+                f"{root}: a LeRobotDataset folder without {part}/*.parquet; restore it or record again"
+            )
+
+
+def check_outside_inputs(inputs: list[Path | str], output: Path | str) -> list[Path]:
+    """The inputs, resolved: none named twice (its episodes would be read twice), none the output or
+    inside or around it (a writer replaces its output and would destroy that input)."""
+    roots, output = [Path(p).resolve() for p in inputs], Path(output).resolve()
+    twice = sorted({str(r) for r in roots if roots.count(r) > 1})
+    if twice:
+        raise ValueError(f"the inputs name {', '.join(twice)} more than once")
+    for root in roots:
+        if root == output or output.is_relative_to(root) or root.is_relative_to(output):
+            raise ValueError(
+                f"--output {output} would write over the input {root}; choose an output outside every input"
+            )
+    return roots
 
 
 def read_columns(root: Path | str, columns: list[str]) -> dict[str, np.ndarray]:
@@ -122,6 +142,12 @@ def new_dataset(output: Path | str, overwrite: bool = False, **create: Any) -> I
     recreate the deleted folder afterwards."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
+    output = Path(output)
+    if overwrite and output.exists() and not (output / "meta" / "info.json").is_file():
+        raise FileExistsError(
+            f"{output} exists and is not a LeRobotDataset; --overwrite replaces only a dataset: choose "
+            "another output"
+        )
     with atomic_directory(output, overwrite) as partial:
         dataset = LeRobotDataset.create(root=partial, **create)
         try:

@@ -16,8 +16,8 @@ from lerobot.datasets.dataset_metadata import LeRobotDatasetMetadata
 from lerobot.utils.constants import ACTION, OBS_STATE
 from tqdm import tqdm
 
-from lerobot_opfa.datasets.io import check_dataset_folder, new_dataset, read_columns
-from lerobot_opfa.datasets.layout import OPFA_META_FILE, latent_names, read_layout
+from lerobot_opfa.datasets.io import check_dataset_folder, check_outside_inputs, new_dataset, read_columns
+from lerobot_opfa.datasets.layout import LATENT_ROBOT_TYPE, OPFA_META_FILE, latent_names, read_layout
 from lerobot_opfa.datasets.merge import BOOKKEEPING, NUMERIC
 from lerobot_opfa.hands.universal import UNIVERSAL_JOINT_NAMES
 
@@ -26,7 +26,7 @@ logger = logging.getLogger(__name__)
 
 def latent_dataset(source: Path | str, output: Path | str, overwrite: bool = False) -> Path:
     """Writes `output` (atomically): `source`'s frames with state/action = wrist + cached z."""
-    source = Path(source).resolve()
+    (source,) = check_outside_inputs([source], output)
     check_dataset_folder(source)
     meta = LeRobotDatasetMetadata(f"local/{source.name}", root=source)
     layout = read_layout(meta.features, meta.robot_type, source)
@@ -49,7 +49,7 @@ def latent_dataset(source: Path | str, output: Path | str, overwrite: bool = Fal
     columns = read_columns(source, [OBS_STATE, ACTION, *extra, *BOOKKEEPING])
     tasks = {int(row.task_index): task for task, row in meta.tasks.iterrows()}
     create = dict(
-        repo_id=f"local/{Path(output).name}", fps=meta.fps, features=features, robot_type="opfa_latent",
+        repo_id=f"local/{Path(output).name}", fps=meta.fps, features=features, robot_type=LATENT_ROBOT_TYPE,
         use_videos=False,
     )  # fmt: skip
     with new_dataset(output, overwrite, **create) as dataset:

@@ -25,6 +25,9 @@ from lerobot_opfa.hands.spec import HandSpec
 from lerobot_opfa.hands.universal import UNIVERSAL_JOINT_NAMES
 
 LATENT_PREFIX = "z"
+LATENT_ROBOT_TYPE = "opfa_latent"
+"""The `robot_type` of a `dataset latent` output: state and action are body + z, not joints."""
+
 OPFA_META_FILE = "meta/opfa.json"
 """What lerobot-opfa records about a dataset: `hands` (user hands' specs: name -> {spec, sha256}); for a
 merged dataset also its inputs and, with cached latents, the GaLR that computed them (`galr`, as given to

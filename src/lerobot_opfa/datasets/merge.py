@@ -21,9 +21,10 @@ from lerobot.datasets.dataset_metadata import LeRobotDatasetMetadata
 from lerobot.utils.constants import ACTION, OBS_STATE
 from tqdm import tqdm
 
-from lerobot_opfa.datasets.io import check_dataset_folder, new_dataset, read_columns
+from lerobot_opfa.datasets.io import check_dataset_folder, check_outside_inputs, new_dataset, read_columns
 from lerobot_opfa.datasets.joint_map import JointMap
 from lerobot_opfa.datasets.layout import (
+    LATENT_ROBOT_TYPE,
     OPFA_META_FILE,
     DatasetLayout,
     feature_names,
@@ -63,6 +64,10 @@ class _Input:
 def _open(root: Path, hands: list[str] | None, joint_maps: list[JointMap]) -> _Input:
     check_dataset_folder(root)
     meta = LeRobotDatasetMetadata(f"local/{root.name}", root=root)
+    if meta.robot_type == LATENT_ROBOT_TYPE:
+        raise ValueError(
+            f"{root} is a latent dataset (`dataset latent`); merge the per-hand datasets it came from"
+        )
     names = set(feature_names(meta.features, OBS_STATE))
     fitting = [m for m in joint_maps if set(m.joints) <= names]
     if len(fitting) > 1:
@@ -74,21 +79,6 @@ def _open(root: Path, hands: list[str] | None, joint_maps: list[JointMap]) -> _I
     if layout.kind != "native":
         raise ValueError(f"{root} is already a merged dataset; merge the per-hand datasets it came from")
     return _Input(root, meta, layout)
-
-
-def _checked_paths(inputs: list[Path | str], output: Path | str) -> list[Path]:
-    """The inputs, resolved: none named twice (its episodes would be merged twice), none the output or
-    inside or around it (the merge replaces the output and would destroy that input)."""
-    roots, output = [Path(p).resolve() for p in inputs], Path(output).resolve()
-    twice = sorted({str(r) for r in roots if roots.count(r) > 1})
-    if twice:
-        raise ValueError(f"--inputs names {', '.join(twice)} more than once")
-    for root in roots:
-        if root == output or output.is_relative_to(root) or root.is_relative_to(output):
-            raise ValueError(
-                f"--output {output} would write over the input {root}; choose an output outside every input"
-            )
-    return roots
 
 
 def _passthrough(inputs: list[_Input]) -> dict[str, dict]:
@@ -136,7 +126,7 @@ def merge_datasets(
         galr = load_galr(str(galr_path))
         hands = known_hand_refs(galr)
     maps = [JointMap.load(path) for path in joint_maps]
-    opened = [_open(root, hands, maps) for root in _checked_paths(inputs, output)]
+    opened = [_open(root, hands, maps) for root in check_outside_inputs(inputs, output)]
     unused = [m.source for m in maps if not any(i.layout.joint_maps[0].source == m.source for i in opened)]
     if unused:
         raise ValueError(f"joint map(s) {unused} fit none of the inputs (their entries are in no input)")
@@ -241,11 +231,18 @@ def _hand(source: _Input, galr) -> HandModel:
 
 
 def _check_limits(source: _Input, galr) -> None:
-    """Every state and action frame of the input within its hand's joint limits (before anything is
-    written: latents of values out of range would be cached without a word)."""
+    """Every state and action frame of the input finite and within its hand's joint limits (before
+    anything is written: latents of values out of range would be cached without a word)."""
     hand, joint_map = _hand(source, galr), source.layout.joint_maps[0]
     for key, values in read_columns(source.root, [OBS_STATE, ACTION]).items():
-        _, q = joint_map.split(torch.tensor(values, dtype=torch.float64), key)
+        body, q = joint_map.split(torch.tensor(values, dtype=torch.float64), key)
+        bad = ~body.isfinite()
+        if bad.any():
+            entry = joint_map.body_names[int(bad.any(0).nonzero()[0])]
+            raise ValueError(
+                f"{source.root}: {key} is not finite (NaN or inf) in {int(bad.any(1).sum())} of {len(body)} "
+                f"frames, first in entry '{entry}'"
+            )
         hand.check_within_limits(q, f"{source.root} ({key}, through {joint_map.source})")
 
 

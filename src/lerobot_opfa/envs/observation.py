@@ -1,6 +1,7 @@
 """Point-cloud observations in the world frame: from simulated depth cameras (the default, what a real
 rig sees) or sampled on the geometry (faster, complete). Both are cropped to the workspace above the
-table and downsampled to a fixed N (voxel grid, then a uniform draw)."""
+table and downsampled to a fixed N (`pointclouds`, the code the depth processor step runs on a rig's
+cameras)."""
 
 from __future__ import annotations
 
@@ -9,34 +10,13 @@ import numpy as np
 import trimesh
 
 from lerobot_opfa.hands.geometry import geom_mesh
+from lerobot_opfa.pointclouds import WORKSPACE_LOW, PinholeCamera, back_project, crop_and_downsample
 
-# Workspace crop (world frame): above the table top, inside the table's footprint.
-WORKSPACE_LOW = np.array([-0.45, -0.40, 0.004])
-WORKSPACE_HIGH = np.array([0.45, 0.40, 0.60])
-VOXEL = 0.004
 # Render-context settings of depth cameras; software GL pays per triangle and per sample. Round geoms coarser
 # than in pictures (28 slices, 16 stacks): 12 slices put a 1 cm capsule's facets within 0.2 mm of the surface,
 # far under the 4 mm voxel. Box faces (the built-in hands are made of boxes) undivided: pictures split them
 # for per-vertex lighting, depth is the same. No multisampling (pictures: 4): depth read at pixel centres.
 DEPTH_QUALITY = {"numslices": 12, "numstacks": 6, "numquads": 1, "offsamples": 0}
-PREDRAW = 3  # before the voxel grid, keep at most this many points per output point (bounds its cost)
-
-
-def crop_and_downsample(points: np.ndarray, n_points: int, rng: np.random.Generator) -> np.ndarray:
-    """Keep the points inside the workspace, one per voxel, then draw exactly `n_points` of them."""
-    x, y, z = points.T  # per-coordinate tests: several times faster than a reduction over axis 1
-    lo, hi = WORKSPACE_LOW, WORKSPACE_HIGH
-    points = points[(z > lo[2]) & (z < hi[2]) & (x > lo[0]) & (x < hi[0]) & (y > lo[1]) & (y < hi[1])]
-    if len(points) == 0:
-        return np.zeros((n_points, 3), np.float32)
-    if len(points) > PREDRAW * n_points:
-        points = points[rng.choice(len(points), PREDRAW * n_points, replace=False)]
-    cells = np.floor((points - WORKSPACE_LOW) / VOXEL).astype(np.int64)
-    keys = (cells[:, 0] * 1024 + cells[:, 1]) * 1024 + cells[:, 2]
-    _, first = np.unique(keys, return_index=True)
-    points = points[first]
-    index = rng.choice(len(points), n_points, replace=len(points) < n_points)
-    return points[index].astype(np.float32)
 
 
 class DepthPointCloud:
@@ -66,24 +46,40 @@ class DepthPointCloud:
         self.option.sitegroup[:] = 0
         self.option.flags[mujoco.mjtVisFlag.mjVIS_TENDON] = 0
         self.cameras = [model.camera(f"depth_{name}").id for name in cameras]
-        # pixel rays in the camera frame at unit depth (MuJoCo cameras look along -z with y up)
-        self.rays = []
+        self.focals = [0.5 * height / np.tan(np.deg2rad(model.cam_fovy[cam]) / 2) for cam in self.cameras]
+        self.rays = None  # per camera, from its intrinsics (the same at every step)
+
+    def pinhole_cameras(self, data: mujoco.MjData) -> list[PinholeCamera]:
+        """The cameras as a rig's calibration gives them: OpenCV intrinsics (MuJoCo renders pixel centres at
+        half-integers) and camera-to-world poses (MuJoCo cameras look along -z with y up)."""
+        height, width = self.renderer.height, self.renderer.width
+        cameras = []
+        for cam, focal in zip(self.cameras, self.focals, strict=True):
+            pose = np.eye(4)
+            pose[:3, :3] = data.cam_xmat[cam].reshape(3, 3) @ np.diag([1.0, -1.0, -1.0])
+            pose[:3, 3] = data.cam_xpos[cam]
+            cameras.append(
+                PinholeCamera(focal, focal, width / 2 - 0.5, height / 2 - 0.5, tuple(map(tuple, pose)))
+            )
+        return cameras
+
+    def depth_images(self, data: mujoco.MjData) -> list[np.ndarray]:
+        """(H, W) depth in metres along each camera's optical axis."""
+        images = []
         for cam in self.cameras:
-            focal = 0.5 * height / np.tan(np.deg2rad(model.cam_fovy[cam]) / 2)
-            u, v = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)
-            rays = np.stack([(u - width / 2) / focal, -(v - height / 2) / focal, -np.ones_like(u)], axis=-1)
-            self.rays.append(rays.reshape(-1, 3))
+            self.renderer.update_scene(data, camera=cam, scene_option=self.option)
+            images.append(self.renderer.render().copy())
+        return images
 
     def __call__(self, data: mujoco.MjData, rng: np.random.Generator) -> np.ndarray:
-        clouds = []
-        for cam, rays in zip(self.cameras, self.rays, strict=True):
-            self.renderer.update_scene(data, camera=cam, scene_option=self.option)
-            depth = self.renderer.render().reshape(-1)
-            rot, pos = data.cam_xmat[cam].reshape(3, 3), data.cam_xpos[cam]
-            # most pixels see the table: keep those above it before transforming all three coordinates
-            keep = depth * (rays @ rot[2]) + pos[2] > WORKSPACE_LOW[2]
-            clouds.append((rays[keep] * depth[keep, None]) @ rot.T + pos)
-        return crop_and_downsample(np.concatenate(clouds), self.n_points, rng)
+        cameras = self.pinhole_cameras(data)
+        if self.rays is None:
+            self.rays = [c.rays(self.renderer.height, self.renderer.width) for c in cameras]
+        points = [
+            back_project(depth, camera, rays, WORKSPACE_LOW[2])
+            for depth, camera, rays in zip(self.depth_images(data), cameras, self.rays, strict=True)
+        ]
+        return crop_and_downsample(np.concatenate(points), self.n_points, rng)
 
     def close(self) -> None:
         self.renderer.close()

@@ -125,10 +125,14 @@ def parse_overrides(pairs: list[str]) -> GalrConfig:
         if not sep or key not in {f.name for f in dataclasses.fields(GalrConfig)} or key == "hands":
             raise ValueError(f"--model {pair!r}: expected KEY=VALUE with KEY a GalrConfig field")
         default = getattr(defaults, key)
-        if isinstance(default, tuple):
-            values[key] = tuple(type(default[0])(x) for x in raw.split(","))
-        else:
-            values[key] = type(default)(raw)
+        kind = type(default[0]) if isinstance(default, tuple) else type(default)
+        try:
+            parsed = tuple(kind(x) for x in raw.split(",")) if isinstance(default, tuple) else kind(raw)
+        except ValueError:
+            raise ValueError(
+                f"--model {pair!r}: {key} takes {kind.__name__} values (default {default})"
+            ) from None
+        values[key] = parsed
     return GalrConfig(**values)
 
 
@@ -202,7 +206,12 @@ def _array(path: Path, what: str, width: int, names: str):
 
     if not path.is_file():
         raise ValueError(f"{path}: no such file ({what}: a .npy array of shape (B, {width}))")
-    array = np.load(path)
+    try:
+        array = np.load(path)
+    except (ValueError, OSError) as err:
+        raise ValueError(f"{path} is not a .npy array ({err}); {what}: shape (B, {width})") from None
+    if not isinstance(array, np.ndarray):
+        raise ValueError(f"{path} is an .npz archive, not a .npy array; {what}: shape (B, {width})")
     if array.ndim == 1:
         array = array[None]
     if array.ndim != 2 or array.shape[1] != width:

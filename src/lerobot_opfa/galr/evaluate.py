@@ -114,8 +114,13 @@ def plot_training_curves(runs: dict[str, Path], out: Path) -> Path:
     """Validation RMSE against wall-clock training time for each run's `metrics.jsonl`."""
     fig, ax = plt.subplots(figsize=(7, 4.5))
     for label, run in runs.items():
-        rows = [json.loads(line) for line in (Path(run) / "metrics.jsonl").read_text().splitlines()]
+        metrics = Path(run) / "metrics.jsonl"
+        if not metrics.is_file():
+            raise ValueError(f"{run}: no metrics.jsonl (not a `galr pretrain` output folder)")
+        rows = [json.loads(line) for line in metrics.read_text().splitlines()]
         rows = [r for r in rows if "val/rmse_deg_mean" in r]
+        if not rows:
+            raise ValueError(f"{metrics} has no validation rows yet (they come every --validate-every steps)")
         ax.plot([r["elapsed_s"] / 60 for r in rows], [r["val/rmse_deg_mean"] for r in rows], marker="o", ms=3,
                 label=f"{label} (final {rows[-1]['val/rmse_deg_mean']:.2f} deg)")  # fmt: skip
     ax.set(xlabel="training time (min)", ylabel="validation joint RMSE, mean over hands (deg)", yscale="log")

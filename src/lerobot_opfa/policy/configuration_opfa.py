@@ -120,7 +120,8 @@ class OpfaConfig(PreTrainedConfig):
         factor = 2 ** (len(self.down_dims) - 1)
         if self.horizon % factor:
             raise ValueError(
-                f"`horizon` ({self.horizon}) must be a multiple of {factor} for {self.down_dims=}"
+                f"`horizon` ({self.horizon}) must be a multiple of {factor}: the U-Net of down_dims="
+                f"{self.down_dims} halves it {len(self.down_dims) - 1} times"
             )
         if not 0 < self.n_action_steps <= self.horizon - self.n_obs_steps + 1:
             raise ValueError(

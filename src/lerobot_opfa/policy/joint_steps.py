@@ -53,6 +53,11 @@ class PointCloudBatchStep(ObservationProcessorStep):
 
     def observation(self, observation: dict[str, Any]) -> dict[str, Any]:
         cloud = observation.get(OBS_POINTCLOUD)
+        if cloud is None:
+            raise ValueError(
+                f"the observation has no {OBS_POINTCLOUD} (it has {', '.join(observation)}); this policy "
+                "reads a point cloud (the opfa env gives one with obs_type=pointcloud, its default)"
+            )
         if isinstance(cloud, torch.Tensor):
             self._check(cloud)
             if cloud.dim() == 1:
@@ -60,6 +65,11 @@ class PointCloudBatchStep(ObservationProcessorStep):
         return observation
 
     def _check(self, cloud: torch.Tensor) -> None:
+        if cloud.dim() >= 2 and cloud.shape[-1] == 3 and cloud.shape[-2] == self.n_points:
+            raise ValueError(
+                f"{OBS_POINTCLOUD} has shape {tuple(cloud.shape)}; give it flattened: (..., "
+                f"{3 * self.n_points}) = {self.n_points} points x 3"
+            )
         if self.n_points and cloud.shape[-1] != 3 * self.n_points:
             raise ValueError(
                 f"{OBS_POINTCLOUD} holds {cloud.shape[-1] / 3:g} points ({cloud.shape[-1]} values); this "
@@ -251,6 +261,8 @@ class OpfaEncodeJointsStep(_HandSpace, ProcessorStep):
         else:
             index = self._hand_index(hand) if hand is not None else self._native_index(state.shape[-1])
             self.check_width(state, index, OBS_STATE, spec_order)  # now, even when the encode is deferred
+            if not isinstance(action, torch.Tensor):  # a live robot's (training frames are checked whole)
+                self.check_robot_state(state, index, spec_order)
             ids = torch.full((len(state),), index, dtype=torch.long, device=state.device)
 
             def convert(x, key):
@@ -268,6 +280,15 @@ class OpfaEncodeJointsStep(_HandSpace, ProcessorStep):
         _ENCODERS.setdefault(self.link, weakref.WeakValueDictionary())[id(self)] = self
         new[TransitionKey.OBSERVATION] = obs
         return new
+
+    def check_robot_state(self, state: torch.Tensor, index: int, spec_order: bool) -> None:
+        """A robot's joints within its hand's limits: a reading in other units would be encoded into a
+        state the policy never saw, without a word. (NaN is the state guard's, which names the entry.)"""
+        q = state[..., self.wrist_dim :] if spec_order else self.maps[index].split(state, OBS_STATE)[1]
+        if not q.isfinite().all():
+            return
+        source = f"{OBS_STATE} of the robot" + ("" if spec_order else f" (through {self.maps[index].source})")
+        self.model(index).check_within_limits(q.reshape(-1, q.shape[-1]), source)
 
     def forget_last_batch(self) -> None:
         """Its postprocessor partner no longer reads this batch's hand (one the pipeline builder encoded)."""

@@ -25,7 +25,11 @@ def convert_policy_io(
 ) -> Path:
     """Copies the checkpoint folder `policy_dir` to `output` with joint-space processors."""
     policy_dir, output = Path(policy_dir), Path(output)
+    if not (policy_dir / "config.json").is_file():
+        raise ValueError(f"{policy_dir}: not a checkpoint folder (no config.json; give its pretrained_model)")
     config = PreTrainedConfig.from_pretrained(policy_dir)
+    if config.type == "opfa":
+        raise ValueError(f"{policy_dir} is an opfa policy: its processors already take and give joints")
     pre, post = make_pre_post_processors(config, pretrained_path=str(policy_dir))
     galr = load_galr(str(galr_path))
     hands = galr.config.hand_names
