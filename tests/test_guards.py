@@ -117,6 +117,12 @@ def test_a_merge_interrupted_at_any_point_leaves_nothing_and_a_rerun_succeeds(
     assert read_columns(tmp_path / "m", ["index"])["index"].size == 24 and _leftovers(tmp_path) == []
 
 
+def _interruptible() -> None:
+    """A child that Ctrl-C reaches even when pytest runs in the background (where a shell starts it with
+    SIGINT ignored, which its children inherit and Python then leaves alone)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def test_sigint_during_a_merge_leaves_nothing_and_a_rerun_succeeds(datasets, tmp_path):
     inputs = [str(datasets / h) for h in ("umi", "inspire")]
     command = [sys.executable, "-m", "lerobot_opfa.cli", "dataset", "merge", "--inputs", *inputs, "--output"]
@@ -130,7 +136,7 @@ def test_sigint_during_a_merge_leaves_nothing_and_a_rerun_succeeds(datasets, tmp
     )
     process = subprocess.Popen(
         [sys.executable, str(slow), *command[3:], str(tmp_path / "m")],
-        env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=_interruptible,
     )  # fmt: skip
     assert process.stdout.readline().strip() == "episode"  # inside the merge, its first episode written
     process.send_signal(signal.SIGINT)
