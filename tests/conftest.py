@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import importlib.util
+import logging
 import shutil
 import sysconfig
 from pathlib import Path
@@ -14,6 +15,17 @@ from lerobot_opfa.hands.registry import builtin_hands, hand_models_dir
 
 DATA = Path(__file__).parent / "data"
 BUILTIN_HANDS = sorted(builtin_hands())
+
+
+@pytest.fixture(autouse=True)
+def _root_logging_as_it_was():
+    """LeRobot's training entry point, run in process, adds a root handler on the test's captured stderr,
+    which is closed once the test ends; later tests would log into it."""
+    root = logging.getLogger()
+    handlers, level = list(root.handlers), root.level
+    yield
+    root.handlers[:] = handlers
+    root.setLevel(level)
 
 
 def example_robot_data_allegro() -> Path:

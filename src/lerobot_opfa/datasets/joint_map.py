@@ -13,8 +13,8 @@ A map is a small YAML file (docs/usage.md):
 
 A spec joint's value is `scale * entry + offset`. Every other entry is body state (an arm's joints, a wrist
 pose in any convention) that the policy models as it is. A dataset whose hand entries are named after the
-spec's joints needs no file (`JointMap.named_after`). One hand per frame; a second would be a second list of
-joints here, nothing elsewhere.
+spec's joints (or `<joint>.pos`) needs no file (`JointMap.named_after`). One hand per frame; a second
+would be a second list of joints here, nothing elsewhere.
 """
 
 from __future__ import annotations
@@ -31,6 +31,14 @@ import yaml
 from lerobot_opfa.hands.registry import builtin_hands, hand_ref, load_spec
 from lerobot_opfa.hands.spec import HandSpec
 from lerobot_opfa.hands.universal import FINGERS
+
+POSITION_SUFFIX = ".pos"
+"""LeRobot's robots name a motor's position entry `<motor>.pos` (what `lerobot-record` writes)."""
+
+
+def joint_of(entry: str) -> str:
+    """The joint an entry named after it stands for: itself, or `<joint>.pos`."""
+    return entry.removesuffix(POSITION_SUFFIX)
 
 
 class JointMapError(ValueError):
@@ -113,10 +121,11 @@ class JointMap:
 
     @classmethod
     def named_after(cls, spec: HandSpec, state_names: list[str], action_names: list[str]) -> JointMap:
-        """The map of a robot whose hand entries carry the spec's joint names, in the spec's units."""
-        return cls(
-            hand_ref(spec), {j: MappedJoint(j) for j in spec.actuated_joints}, source=f"hand '{spec.name}'"
-        ).bind(state_names, action_names)
+        """The map of a robot whose hand entries carry the spec's joint names (or LeRobot's `<joint>.pos`),
+        in the spec's units."""
+        entries = {**{joint_of(n): n for n in action_names}, **{n: n for n in action_names}}
+        joints = {entries.get(j, j): MappedJoint(j) for j in spec.actuated_joints}
+        return cls(hand_ref(spec), joints, source=f"hand '{spec.name}'").bind(state_names, action_names)
 
     # --- binding to a robot's entries -----------------------------------------------------------------
     def bind(self, state_names: list[str], action_names: list[str]) -> JointMap:

@@ -18,7 +18,7 @@ from pathlib import Path
 from lerobot.utils.constants import ACTION, OBS_STATE
 
 from lerobot_opfa.datasets.io import read_json
-from lerobot_opfa.datasets.joint_map import JointMap, closest_hands, map_to_write
+from lerobot_opfa.datasets.joint_map import JointMap, closest_hands, joint_of, map_to_write
 from lerobot_opfa.features import OBS_EMBODIMENT
 from lerobot_opfa.hands.registry import builtin_hands, hand_ref, load_spec
 from lerobot_opfa.hands.spec import HandSpec
@@ -77,10 +77,11 @@ def identify_hand(names: list[str], robot_type: str | None, hands: list[str] | N
     it names a hand, else the one candidate whose joints all appear. Otherwise the error names the closest
     hand by joint structure and the joint map to write."""
     specs = list({s.path: s for s in map(load_spec, _hand_candidates(hands))}.values())
+    joints = {joint_of(n) for n in names} | set(names)
     named = [s for s in specs if s.name == robot_type]
-    if named and set(named[0].actuated_joints) <= set(names):
+    if named and set(named[0].actuated_joints) <= joints:
         return named[0]
-    matches = [] if named else [s for s in specs if set(s.actuated_joints) <= set(names)]
+    matches = [] if named else [s for s in specs if set(s.actuated_joints) <= joints]
     if matches:
         best = max(len(s.actuated_joints) for s in matches)
         widest = [s for s in matches if len(s.actuated_joints) == best]
@@ -92,8 +93,8 @@ def identify_hand(names: list[str], robot_type: str | None, hands: list[str] | N
         )
     closest, *alternatives = named or closest_hands(names, specs)
     whose = f"hand '{robot_type}'" if named else "any registered hand"
-    missing = [j for j in closest.actuated_joints if j not in names]
-    unknown = [n for n in names if n not in closest.joints]
+    missing = [j for j in closest.actuated_joints if j not in joints]
+    unknown = [n for n in names if joint_of(n) not in closest.joints]
     hands = ", ".join(repr(s.name) for s in [closest, *alternatives])
     raise JointNameError(
         f"the state/action entries ({len(names)}: {', '.join(names[:4])}, ...) are not named after the "

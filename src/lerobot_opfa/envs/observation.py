@@ -58,8 +58,9 @@ class DepthPointCloud:
             pose = np.eye(4)
             pose[:3, :3] = data.cam_xmat[cam].reshape(3, 3) @ np.diag([1.0, -1.0, -1.0])
             pose[:3, 3] = data.cam_xpos[cam]
+            pose_rows = tuple(map(tuple, pose.tolist()))
             cameras.append(
-                PinholeCamera(focal, focal, width / 2 - 0.5, height / 2 - 0.5, tuple(map(tuple, pose)))
+                PinholeCamera(float(focal), float(focal), width / 2 - 0.5, height / 2 - 0.5, pose_rows)
             )
         return cameras
 

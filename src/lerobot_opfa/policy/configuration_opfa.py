@@ -10,11 +10,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from lerobot.configs import NormalizationMode, PreTrainedConfig
+from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot.optim import AdamConfig
 from lerobot.optim.schedulers import CosineDecayWithWarmupSchedulerConfig
 from lerobot.utils.constants import ACTION, OBS_STATE
 
 from lerobot_opfa.features import OBS_POINTCLOUD
+from lerobot_opfa.pointclouds import DepthRig
 from lerobot_opfa.policy.action_spaces import ACTION_SPACES, ActionSpace
 
 WRIST_NORMALIZATIONS = ("per_embodiment", "shared")
@@ -41,6 +43,12 @@ class OpfaConfig(PreTrainedConfig):
     joint_map: str | None = None
     """A joint map (YAML, docs/usage.md) for a single-hand dataset whose state/action entries are not named
     after its hand's joints; read at the first training run and saved inside the processors."""
+
+    cameras: str | None = None
+    """A camera calibration (YAML, docs/usage.md) for a dataset recorded with depth cameras: their depth-map
+    features become the policy's cloud in the preprocessor (`depth_step`); saved inside the processors."""
+    cloud_points: int = 1024
+    """Points of the cloud made from depth frames (with `cameras`)."""
 
     normalization: NormalizationMode = NormalizationMode.MIN_MAX
     """Per-embodiment normalisation of state and action (MIN_MAX, MEAN_STD or IDENTITY); MIN_MAX keeps z and
@@ -117,6 +125,8 @@ class OpfaConfig(PreTrainedConfig):
         ):
             if value not in valid:
                 raise ValueError(f"`{name}` must be one of {list(valid)}, got '{value}'")
+        if self.cloud_points < 1:
+            raise ValueError(f"`cloud_points` must be positive, got {self.cloud_points}")
         factor = 2 ** (len(self.down_dims) - 1)
         if self.horizon % factor:
             raise ValueError(
@@ -176,15 +186,35 @@ class OpfaConfig(PreTrainedConfig):
         )
 
     def validate_features(self) -> None:
-        missing = [k for k in (OBS_STATE, OBS_POINTCLOUD) if k not in (self.input_features or {})]
+        inputs = self.input_features or {}
+        if OBS_POINTCLOUD not in inputs and self.cameras:
+            self._cloud_from_depth(inputs)
+        missing = [k for k in (OBS_STATE, OBS_POINTCLOUD) if k not in inputs]
         if missing or ACTION not in (self.output_features or {}):
+            depth = [k for k, f in inputs.items() if f.type is FeatureType.VISUAL and f.shape[0] == 1]
+            hint = (
+                f"; give the depth cameras {depth} their calibration: --policy.cameras=FILE" if depth else ""
+            )
             raise ValueError(
                 f"the opfa policy needs inputs {OBS_STATE} and {OBS_POINTCLOUD} and output {ACTION}; "
-                f"missing {missing + ([] if ACTION in (self.output_features or {}) else [ACTION])}"
+                f"missing {missing + ([] if ACTION in (self.output_features or {}) else [ACTION])}{hint}"
             )
-        shape = tuple(self.input_features[OBS_POINTCLOUD].shape)
+        shape = tuple(inputs[OBS_POINTCLOUD].shape)
         if len(shape) != 1 or shape[0] % 3:
             raise ValueError(f"{OBS_POINTCLOUD} must be flattened xyz of shape (N*3,), got {shape}")
+
+    def _cloud_from_depth(self, inputs: dict[str, PolicyFeature]) -> None:
+        """The calibrated depth features leave the inputs; the cloud the depth step makes from them enters."""
+        rig = DepthRig.load(self.cameras)
+        missing = [k for k in rig.cameras if k not in inputs]
+        if missing:
+            raise ValueError(
+                f"--policy.cameras={self.cameras} calibrates {missing}, not features of the dataset "
+                f"({', '.join(k for k, f in inputs.items() if f.type is FeatureType.VISUAL) or 'no cameras'})"
+            )
+        for key in rig.cameras:
+            del inputs[key]
+        inputs[OBS_POINTCLOUD] = PolicyFeature(FeatureType.STATE, (3 * self.cloud_points,))
 
     @property
     def n_points(self) -> int:

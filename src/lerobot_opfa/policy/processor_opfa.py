@@ -1,9 +1,9 @@
 """`make_opfa_pre_post_processors`: the opfa policy's processor pipelines (found by LeRobot by name).
 
-Preprocessor: rename -> batch -> batch point clouds -> device -> joints to policy space (z for `galr`)
--> per-embodiment normalisation. Postprocessor: unnormalise -> policy space to the hand's joints -> CPU.
-The GaLR's encoder weights are saved with the preprocessor and its decoder with the postprocessor, so a
-checkpoint (or a Hub repo) is self-contained.
+Preprocessor: rename -> [depth frames to a cloud] -> batch -> batch point clouds -> device -> joints to
+policy space (z for `galr`) -> per-embodiment normalisation. Postprocessor: unnormalise -> policy space
+to the robot's action entries -> CPU. The GaLR's encoder weights are saved with the preprocessor and its
+decoder with the postprocessor, so a checkpoint (or a Hub repo) is self-contained.
 """
 
 from __future__ import annotations
@@ -47,8 +47,10 @@ from lerobot_opfa.galr.frozen import galr_fingerprint, known_hand_refs, load_gal
 from lerobot_opfa.galr.model import Galr
 from lerobot_opfa.hands.registry import load_spec
 from lerobot_opfa.hands.universal import UNIVERSAL_JOINT_NAMES
+from lerobot_opfa.pointclouds import DepthRig, DepthRigError
 from lerobot_opfa.policy.action_spaces import universal_mask
 from lerobot_opfa.policy.configuration_opfa import OpfaConfig
+from lerobot_opfa.policy.depth_step import DepthToPointCloudStep
 from lerobot_opfa.policy.joint_steps import OpfaDecodeJointsStep, OpfaEncodeJointsStep, PointCloudBatchStep
 from lerobot_opfa.policy.normalization import OpfaNormalizeStep, OpfaUnnormalizeStep, affine_tables
 
@@ -224,6 +226,21 @@ def _frame_statistics(
     return state, column_statistics(out[TransitionKey.ACTION], ids, n_embodiments), floor
 
 
+def depth_step(config: OpfaConfig, meta: Any) -> DepthToPointCloudStep:
+    """The depth step of `config.cameras`, tried on the dataset's first frame: a pose, unit or workspace
+    that puts no point in the workspace is an error now, not a training run on clouds of zeros."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    step = DepthToPointCloudStep(rig=DepthRig.load(config.cameras).to_dict(), n_points=config.cloud_points)
+    first = LeRobotDataset(meta.repo_id, root=meta.root, episodes=[0])[0]
+    try:
+        step.observation({k: first[k] for k in step.depth_rig.cameras})
+    except DepthRigError as err:
+        raise DepthRigError(f"{meta.root}, frame 0: {err}") from None
+    step.reset()
+    return step
+
+
 def check_trainable_frames(config: OpfaConfig, layout: DatasetLayout, root: Path) -> None:
     """Every hand keeps frames to train on once LeRobot's sampler drops the last `drop_n_last_frames` of
     each episode; a hand it would skip entirely would be listed by the policy without being learned."""
@@ -254,8 +271,10 @@ def make_opfa_pre_post_processors(
     meta = dataset_meta if dataset_meta is not None else getattr(config, "_runtime_dataset_meta", None)
     if meta is None:
         raise ValueError("opfa processors are built from the training dataset: pass dataset_meta")
+    config.validate_features()
     layout, galr = resolve_config(config, meta)
     check_trainable_frames(config, layout, Path(meta.root))
+    depth = [depth_step(config, meta)] if config.cameras else []
     cached = galr is not None and layout.latent_dim > 0  # policy_galr checked that this GaLR made them
     shared = dict(
         action_space=config.action_space,
@@ -278,6 +297,7 @@ def make_opfa_pre_post_processors(
     return make_policy_processor_pipelines(
         input_steps=[
             RenameObservationsProcessorStep(rename_map={}),
+            *depth,
             AddBatchDimensionProcessorStep(),
             PointCloudBatchStep(n_points=config.n_points),
             DeviceProcessorStep(device=config.device),

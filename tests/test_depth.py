@@ -1,0 +1,169 @@
+"""Depth maps to point clouds: a dataset recorded with depth cameras (LeRobot's own writer, its depth
+encoding) trains `opfa` through the depth step, whose clouds are the simulator's from the same images."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import yaml
+from lerobot.datasets.lerobot_dataset import LeRobotDataset
+from lerobot.utils.feature_utils import hw_to_dataset_features
+from scipy.spatial import cKDTree
+
+from lerobot_opfa.envs.env import OpfaSimEnv
+from lerobot_opfa.features import OBS_POINTCLOUD
+from lerobot_opfa.pointclouds import VOXEL, DepthRig, DepthRigError
+from lerobot_opfa.policy.depth_step import DepthToPointCloudStep
+
+ENV = {**os.environ, "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1"}
+CAMERAS = ("front", "left")
+KEYS = [f"observation.images.{c}_depth" for c in CAMERAS]
+N_POINTS = 2048
+
+
+def record(root: Path, frames: int = 6, episodes: int = 2, cloud_points: int = N_POINTS) -> tuple[Path, list]:
+    """A umi rig's episodes as `lerobot-record` writes them: joints under `<name>.pos`, two depth cameras
+    (H, W, 1) in millimetres as uint16 (a RealSense's `read_depth`), encoded as LeRobot's depth video; the
+    calibration file beside it. Returns the calibration and, per frame, the simulator's own cloud."""
+    env = OpfaSimEnv(task="lift", hand="umi", n_points=cloud_points, depth_cameras=",".join(CAMERAS))
+    names = [f"{n}.pos" for n in env.state_names]
+    robot = {n: float for n in names} | {f"{c}_depth": (96, 128, 1) for c in CAMERAS}
+    features = hw_to_dataset_features(robot, "observation") | hw_to_dataset_features(
+        {n: float for n in names}, "action"
+    )
+    fps = env.metadata["render_fps"]
+    dataset = LeRobotDataset.create("local/rig", fps, features=features, root=root / "rig", robot_type="umi")
+    sim_clouds = []
+    for episode in range(episodes):
+        obs, _ = env.reset(seed=episode)
+        for _ in range(frames):
+            sim_clouds.append(obs["pointcloud"].reshape(-1, 3))
+            depths = env._cloud.depth_images(env.data)  # the images the simulator's cloud was made from
+            frame = {"observation.state": obs["agent_pos"].astype(np.float32), "task": "lift the object"}
+            frame["action"] = frame["observation.state"]
+            for key, depth in zip(KEYS, depths, strict=True):
+                frame[key] = np.round(depth * 1000).astype(np.uint16)[..., None]
+            dataset.add_frame(frame)
+            obs, *_ = env.step(obs["agent_pos"])
+        dataset.save_episode()
+    dataset.finalize()
+    cameras = dict(zip(KEYS, env._cloud.pinhole_cameras(env.data), strict=True))
+    calibration = root / "cameras.yaml"
+    calibration.write_text(yaml.safe_dump(DepthRig(cameras).to_dict()))
+    env.close()
+    return calibration, sim_clouds
+
+
+@pytest.fixture(scope="module")
+def rig(tmp_path_factory) -> tuple[Path, Path, list]:
+    root = tmp_path_factory.mktemp("depth")
+    calibration, sim_clouds = record(root)
+    return root / "rig", calibration, sim_clouds
+
+
+def test_the_depth_step_gives_the_simulators_clouds_from_a_lerobot_depth_dataset(rig):
+    root, calibration, sim_clouds = rig
+    dataset = LeRobotDataset("local/rig", root=root)
+    assert all(dataset.meta.features[k]["info"]["is_depth_map"] for k in KEYS)
+    step = DepthToPointCloudStep(rig=DepthRig.load(calibration).to_dict(), n_points=N_POINTS)
+    for i in (0, 5, 9):
+        frame = dataset[i]
+        cloud = step.observation({k: frame[k] for k in KEYS})[OBS_POINTCLOUD].reshape(-1, 3).numpy()
+        sim = sim_clouds[i]
+        to_sim, to_step = cKDTree(sim).query(cloud)[0], cKDTree(cloud).query(sim)[0]
+        # both draw from one voxel per occupied 4 mm cell: each point within a voxel's diagonal of the other
+        for distances in (to_sim, to_step):
+            assert np.quantile(distances, 0.99) < np.sqrt(3) * VOXEL, np.quantile(distances, [0.5, 0.99, 1])
+            assert distances.mean() < VOXEL / 2
+
+
+def test_the_step_takes_batches_histories_and_a_robots_frames(rig):
+    root, calibration, _ = rig
+    step = DepthToPointCloudStep(rig=DepthRig.load(calibration).to_dict(), n_points=64)
+    frame = LeRobotDataset("local/rig", root=root)[0]
+    history = {
+        k: torch.stack([frame[k], frame[k]])[None].repeat(3, 1, 1, 1, 1) for k in KEYS
+    }  # (B, T, 1, H, W)
+    assert step.observation(dict(history))[OBS_POINTCLOUD].shape == (3, 2, 64 * 3)
+    robot = {k: frame[k][0].numpy().round().astype(np.uint16)[..., None] for k in KEYS}  # (H, W, 1), mm
+    observation = step.observation({**robot, "observation.state": torch.zeros(7)})
+    assert observation[OBS_POINTCLOUD].shape == (64 * 3,) and not any(k in observation for k in KEYS)
+    with pytest.raises(ValueError, match=r"no depth frames \['observation.images.left_depth'\]"):
+        step.observation({KEYS[0]: frame[KEYS[0]]})
+
+
+def test_calibration_errors_are_one_line(rig, tmp_path):
+    _, calibration, _ = rig
+    good = yaml.safe_load(calibration.read_text())
+    camera = good["cameras"][KEYS[0]]
+    cases = [
+        ({**good, "depth_unit": "cm"}, "depth_unit 'cm' is not one of"),
+        ({"cameras": {KEYS[0]: {k: v for k, v in camera.items() if k != "fx"}}}, "needs exactly"),
+        ({"cameras": {KEYS[0]: {**camera, "camera_to_world": [[2, 0, 0, 0]] * 4}}}, "rigid 4x4 pose"),
+        ({"cameras": {KEYS[0]: {**camera, "fy": -3}}}, "positive fx and fy"),
+        ({**good, "workspace": {"low": [0, 0, 1], "high": [1, 1, 0]}}, "low < high"),
+        ({**good, "rig": 1}, "unknown keys \\['rig'\\]"),
+    ]
+    for i, (raw, message) in enumerate(cases):
+        path = tmp_path / f"c{i}.yaml"
+        path.write_text(yaml.safe_dump(raw))
+        with pytest.raises(DepthRigError, match=message) as error:
+            DepthRig.load(path)
+        assert str(path) in str(error.value) and "\n" not in str(error.value)
+
+
+def _train(root: Path, out: Path, *flags: str) -> subprocess.CompletedProcess:
+    policy = {"type": "opfa", "action_space": "raw", "device": "cpu", "push_to_hub": "false", "horizon": 8,
+              "down_dims": "[16,32]", "n_action_steps": 4, "pointcloud_widths": "[8,16]",
+              "pointcloud_feature_dim": 8, "cloud_points": 64}  # fmt: skip
+    argv = [*(f"--policy.{k}={v}" for k, v in policy.items()), "--dataset.repo_id=local/rig",
+            f"--dataset.root={root}", "--steps=2", "--batch_size=2", "--num_workers=0", "--save_freq=2",
+            f"--output_dir={out}", "--wandb.enable=false", *flags]  # fmt: skip
+    command = [sys.executable, "-m", "lerobot.scripts.lerobot_train", *argv]
+    return subprocess.run(command, env=ENV, capture_output=True, text=True, timeout=600)
+
+
+def test_lerobot_train_on_depth_then_the_checkpoint_acts_on_a_robots_depth_frames(rig, tmp_path):
+    from lerobot.policies.factory import make_pre_post_processors
+
+    from lerobot_opfa.policy.modeling_opfa import OpfaPolicy
+
+    root, calibration, _ = rig
+    done = _train(root, tmp_path / "out", f"--policy.cameras={calibration}")
+    assert done.returncode == 0, done.stderr[-3000:]
+    checkpoint = tmp_path / "out" / "checkpoints" / "last" / "pretrained_model"
+    calibration.rename(calibration.with_suffix(".moved"))  # the checkpoint carries the calibration
+    try:
+        policy = OpfaPolicy.from_pretrained(checkpoint)
+        pre, post = make_pre_post_processors(policy.config, pretrained_path=str(checkpoint))
+        frame = LeRobotDataset("local/rig", root=root)[4]
+        # what lerobot-rollout hands the preprocessor: (1, 1, H, W) uint16 millimetres
+        observation = {k: torch.from_numpy(frame[k].numpy().round().astype(np.uint16))[None] for k in KEYS}
+        observation["observation.state"] = frame["observation.state"][None]
+        with torch.no_grad():
+            action = post(policy.select_action(pre(observation)))
+        assert action.shape == (1, 7) and action.isfinite().all()
+    finally:
+        calibration.with_suffix(".moved").rename(calibration)
+
+
+def test_depth_without_calibration_and_a_pose_that_sees_nothing_are_errors_before_training(rig, tmp_path):
+    root, calibration, _ = rig
+    done = _train(root, tmp_path / "a")
+    assert done.returncode != 0
+    assert f"give the depth cameras {KEYS} their calibration: --policy.cameras=FILE" in done.stderr
+    raw = yaml.safe_load(calibration.read_text())
+    for camera in raw["cameras"].values():
+        camera["camera_to_world"][2][3] += 5.0  # five metres up: every point above the workspace
+    blind = tmp_path / "blind.yaml"
+    blind.write_text(yaml.safe_dump(raw))
+    done = _train(root, tmp_path / "b", f"--policy.cameras={blind}")
+    assert done.returncode != 0 and not (tmp_path / "b" / "checkpoints").exists()
+    last = done.stderr.strip().splitlines()[-1]
+    assert f"{root}, frame 0: the depth frames of" in last and "put no point in the workspace" in last, last
