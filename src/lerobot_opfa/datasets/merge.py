@@ -105,7 +105,9 @@ def _passthrough(inputs: list[_Input]) -> dict[str, dict]:
         {k for i in inputs for k in i.meta.features} - set(common) - {OBS_STATE, ACTION, *BOOKKEEPING}
     )
     if dropped:
-        logger.warning("features not shared by all inputs (or not numeric) are left out: %s", dropped)
+        logger.warning(
+            "features not shared by all inputs (or not numeric: images, videos) are left out: %s", dropped
+        )
     return common
 
 
