@@ -289,12 +289,19 @@ def without_torchcodec_noise(err: str) -> str:
     return pattern.sub("[torchcodec loading traceback left out]", err)
 
 
+def interruptible() -> None:
+    """Ctrl-C reaches the child even when this script runs in the background (a shell starts background
+    jobs with SIGINT ignored, which children inherit and Python then leaves alone)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def proc(cmd: list[str], cwd: Path, timeout: float = 300) -> Callable[[], Outcome]:
     def run() -> Outcome:
         cwd.mkdir(parents=True, exist_ok=True)
         process = subprocess.Popen(
-            [str(c) for c in cmd], cwd=cwd, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
-        )
+            [str(c) for c in cmd], cwd=cwd, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+            text=True, preexec_fn=interruptible,
+        )  # fmt: skip
         try:
             out, err = process.communicate(timeout=timeout)
             return Outcome(rc=process.returncode, out=out, err=without_torchcodec_noise(err))
@@ -318,8 +325,9 @@ def interrupted(cmd: list[str], cwd: Path, output: Path, sig: int, then: Callabl
     def run() -> Outcome:
         cwd.mkdir(parents=True, exist_ok=True)
         process = subprocess.Popen(
-            [str(c) for c in cmd], cwd=cwd, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
-        )
+            [str(c) for c in cmd], cwd=cwd, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+            text=True, preexec_fn=interruptible,
+        )  # fmt: skip
         deadline, writing = time.monotonic() + 240, False
         while process.poll() is None and time.monotonic() < deadline:
             if output.parent.is_dir() and any(
