@@ -1,0 +1,81 @@
+"""The benchmark as LeRobot hardware: `lerobot-record` records the scripted expert on the `opfa_sim` rig
+with LeRobot's own recorder, `lerobot-train` trains `opfa` from its depth frames and `lerobot-rollout`
+deploys the checkpoint on the rig, as on a real robot."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+ENV = {**os.environ, "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1", "MUJOCO_GL": "egl"}
+
+
+def lerobot(script: str, *flags: str, timeout: float = 600) -> subprocess.CompletedProcess:
+    command = [sys.executable, "-m", f"lerobot.scripts.{script}", *flags]
+    return subprocess.run(command, env=ENV, capture_output=True, text=True, timeout=timeout)
+
+
+def rig_flags(calibration: Path, hand: str = "umi", *extra: str) -> list[str]:
+    return ["--robot.type=opfa_sim", f"--robot.hand={hand}", "--robot.task=press_button",
+            "--robot.depth_cameras=front", f"--robot.calibration_dir={calibration}", *extra]  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("rig")
+    done = lerobot(
+        "lerobot_record", *rig_flags(root / "calibration", "umi", "--robot.episode_time_s=1.5"),
+        "--teleop.type=opfa_expert",
+        "--dataset.repo_id=local/rig", f"--dataset.root={root / 'rig'}", "--dataset.num_episodes=2",
+        "--dataset.episode_time_s=1.5", "--dataset.reset_time_s=0", "--dataset.fps=20",
+        "--dataset.single_task=press the button", "--dataset.push_to_hub=false", "--display_data=false",
+        "--play_sounds=false",
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-3000:]
+    return root
+
+
+def test_lerobot_record_with_the_expert_writes_depth_episodes_and_logs_their_outcome(recorded):
+    dataset = LeRobotDataset("local/rig", root=recorded / "rig")
+    depth = dataset.meta.features["observation.images.front_depth"]
+    assert depth["info"]["is_depth_map"] and tuple(depth["shape"]) == (96, 128, 1)
+    assert dataset.meta.robot_type == "umi" and dataset.meta.total_episodes == 2
+    assert dataset.meta.features["action"]["names"][-1] == "left_jaw_joint.pos"
+    log = [json.loads(line) for line in (recorded / "calibration" / "opfa_sim_episodes.jsonl").open()]
+    assert [o["episode"] for o in log] == [0, 1] and log[0]["ended"] == "time"
+    frames = dataset.meta.episodes["length"]
+    assert [o["steps"] for o in log] == list(frames), (log, frames)  # one scene per recorded episode
+    frame = dataset[5]["observation.images.front_depth"]
+    assert frame.shape == (1, 96, 128) and 200 < float(frame[frame > 0].median()) < 2000  # millimetres
+
+
+def test_a_checkpoint_trained_on_the_rigs_depth_deploys_with_lerobot_rollout(recorded, tmp_path):
+    calibration = recorded / "calibration" / "opfa_sim_cameras.yaml"
+    policy = {"type": "opfa", "action_space": "raw", "device": "cpu", "push_to_hub": "false", "horizon": 8,
+              "down_dims": "[16,32]", "n_action_steps": 4, "pointcloud_widths": "[8,16]",
+              "pointcloud_feature_dim": 8, "cloud_points": 64, "cameras": calibration}  # fmt: skip
+    done = lerobot(
+        "lerobot_train", *(f"--policy.{k}={v}" for k, v in policy.items()), "--dataset.repo_id=local/rig",
+        f"--dataset.root={recorded / 'rig'}", "--steps=2", "--batch_size=2", "--num_workers=0",
+        "--save_freq=2", f"--output_dir={tmp_path / 'train'}", "--wandb.enable=false",
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-3000:]
+    checkpoint = tmp_path / "train" / "checkpoints" / "last" / "pretrained_model"
+    deploy = tmp_path / "deploy"
+    flags = [f"--policy.path={checkpoint}", "--strategy.type=base", "--duration=2", "--fps=20",
+             "--play_sounds=false", "--return_to_initial_position=false"]  # fmt: skip
+    done = lerobot("lerobot_rollout", *rig_flags(deploy, "umi", "--robot.auto_reset=true"), *flags)
+    assert done.returncode == 0, done.stderr[-3000:]
+    log = [json.loads(line) for line in (deploy / "opfa_sim_episodes.jsonl").open()]
+    assert log and all(o["hand"] == "umi" and o["task"] == "press_button" for o in log)
+    assert sum(o["steps"] for o in log) >= 10, log  # the policy drove the rig
+    done = lerobot("lerobot_rollout", *rig_flags(tmp_path / "other", "inspire"), *flags)
+    assert done.returncode != 0
+    last = done.stderr.strip().splitlines()[-1]
+    assert "the 'umi' robot this policy was trained on has 7" in last and "12 entries" in last, last
