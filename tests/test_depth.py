@@ -27,18 +27,20 @@ KEYS = [f"observation.images.{c}_depth" for c in CAMERAS]
 N_POINTS = 2048
 
 
-def record(root: Path, frames: int = 6, episodes: int = 2, cloud_points: int = N_POINTS) -> tuple[Path, list]:
-    """A umi rig's episodes as `lerobot-record` writes them: joints under `<name>.pos`, two depth cameras
+def record(
+    root: Path, frames: int = 6, episodes: int = 2, cloud_points: int = N_POINTS, hand: str = "umi"
+) -> tuple[Path, list]:
+    """A rig's episodes as `lerobot-record` writes them: joints under `<name>.pos`, two depth cameras
     (H, W, 1) in millimetres as uint16 (a RealSense's `read_depth`), encoded as LeRobot's depth video; the
     calibration file beside it. Returns the calibration and, per frame, the simulator's own cloud."""
-    env = OpfaSimEnv(task="lift", hand="umi", n_points=cloud_points, depth_cameras=",".join(CAMERAS))
+    env = OpfaSimEnv(task="lift", hand=hand, n_points=cloud_points, depth_cameras=",".join(CAMERAS))
     names = [f"{n}.pos" for n in env.state_names]
     robot = {n: float for n in names} | {f"{c}_depth": (96, 128, 1) for c in CAMERAS}
     features = hw_to_dataset_features(robot, "observation") | hw_to_dataset_features(
         {n: float for n in names}, "action"
     )
     fps = env.metadata["render_fps"]
-    dataset = LeRobotDataset.create("local/rig", fps, features=features, root=root / "rig", robot_type="umi")
+    dataset = LeRobotDataset.create("local/rig", fps, features=features, root=root / "rig", robot_type=hand)
     sim_clouds = []
     for episode in range(episodes):
         obs, _ = env.reset(seed=episode)
@@ -167,3 +169,17 @@ def test_depth_without_calibration_and_a_pose_that_sees_nothing_are_errors_befor
     assert done.returncode != 0 and not (tmp_path / "b" / "checkpoints").exists()
     last = done.stderr.strip().splitlines()[-1]
     assert f"{root}, frame 0: the depth frames of" in last and "put no point in the workspace" in last, last
+
+
+def test_depth_datasets_of_two_hands_merge_with_their_frames_and_train_one_policy(rig, tmp_path):
+    from lerobot_opfa.datasets.merge import merge_datasets
+
+    root, calibration, _ = rig
+    inspire, _ = record(tmp_path / "inspire_rig", hand="inspire")
+    merged = merge_datasets([root, inspire.parent / "rig"], tmp_path / "merged", galr_path="default")
+    frames = LeRobotDataset("local/merged", root=merged)
+    assert all(frames.meta.features[k]["info"]["is_depth_map"] for k in KEYS)
+    source = LeRobotDataset("local/rig", root=root)
+    assert torch.equal(frames[3][KEYS[1]], source[3][KEYS[1]])  # millimetres, as recorded
+    done = _train(merged, tmp_path / "out", f"--policy.cameras={calibration}", "--policy.action_space=galr")
+    assert done.returncode == 0, done.stderr[-3000:]

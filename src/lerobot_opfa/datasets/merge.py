@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 from lerobot.datasets.dataset_metadata import LeRobotDatasetMetadata
+from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from lerobot.utils.constants import ACTION, OBS_STATE
 from tqdm import tqdm
 
@@ -101,13 +102,6 @@ def _passthrough(inputs: list[_Input]) -> dict[str, dict]:
                 "for point clouds) to merge them"
             )
         common[key] = {**feature, "shape": tuple(feature["shape"])}
-    dropped = sorted(
-        {k for i in inputs for k in i.meta.features} - set(common) - {OBS_STATE, ACTION, *BOOKKEEPING}
-    )
-    if dropped:
-        logger.warning(
-            "features not shared by all inputs (or not numeric: images, videos) are left out: %s", dropped
-        )
     return common
 
 
@@ -148,12 +142,17 @@ def merge_datasets(
     latent_dim = galr.config.latent_dim if galr is not None else 0
     universal = list(UNIVERSAL_JOINT_NAMES)
     names = [*wrist, *universal, *latent_names(latent_dim)]
-    extra = _passthrough(opened)
+    extra, cameras = _passthrough(opened), _cameras(opened)
+    kept = {OBS_STATE, ACTION, *BOOKKEEPING, *extra, *cameras}
+    dropped = sorted({k for i in opened for k in i.meta.features} - kept)
+    if dropped:
+        logger.warning("features not shared by all inputs are left out: %s", dropped)
     features = {
         OBS_STATE: {"dtype": "float32", "shape": (len(names),), "names": names},
         ACTION: {"dtype": "float32", "shape": (len(names),), "names": names},
         OBS_EMBODIMENT: {"dtype": "int64", "shape": (1,), "names": embodiments},
         **extra,
+        **cameras,
     }
     for source in opened:
         _check_limits(source, galr)
@@ -163,7 +162,7 @@ def merge_datasets(
         partial = merged.root
         with tqdm(total=total, desc="merging", unit="frame") as progress:
             for source in opened:
-                _append(merged, source, embodiments, galr, list(extra), progress)
+                _append(merged, source, embodiments, galr, list(extra), list(cameras), progress)
         merged.finalize()
         write_statistics(partial, _statistics(partial, embodiments, galr, len(wrist)))
         refs = {i.layout.embodiments[0]: i.layout.hand_refs[0] for i in opened}
@@ -248,11 +247,55 @@ def _check_limits(source: _Input, galr) -> None:
         hand.check_within_limits(q, f"{source.root} ({key}, through {joint_map.source})")
 
 
-def _append(merged, source: _Input, embodiments, galr, extra: list[str], progress) -> None:
+CAMERA_DTYPES = ("image", "video")
+
+
+def _cameras(inputs: list[_Input]) -> dict[str, dict]:
+    """Camera features (RGB and depth maps) every input has, written as images; inputs that disagree on a
+    camera's shape or kind are an error naming them."""
+    first, cameras = inputs[0].meta.features, {}
+    for key, feature in first.items():
+        if feature["dtype"] not in CAMERA_DTYPES or not all(key in i.meta.features for i in inputs):
+            continue
+        kinds = {
+            i.root: (tuple(i.meta.features[key]["shape"]), _is_depth(i.meta.features[key])) for i in inputs
+        }
+        if len(set(kinds.values())) > 1:
+            found = ", ".join(
+                f"{root}: {shape}{' depth' if depth else ''}" for root, (shape, depth) in kinds.items()
+            )
+            raise ValueError(
+                f"the inputs disagree on camera '{key}' ({found}); record them alike to merge them"
+            )
+        depth = _is_depth(feature)
+        cameras[key] = {"dtype": "image", "shape": tuple(feature["shape"]), "names": feature["names"],
+                        "info": {"is_depth_map": depth}}  # fmt: skip
+    return cameras
+
+
+def _is_depth(feature: dict) -> bool:
+    return bool((feature.get("info") or {}).get("is_depth_map"))
+
+
+def _camera_frame(image: torch.Tensor, feature: dict) -> np.ndarray:
+    """A frame as LeRobot serves it ((C, H, W): RGB in [0, 1], depth in mm) -> as a robot records it
+    ((H, W, C): uint8 RGB, uint16 mm depth)."""
+    hwc = image.permute(1, 2, 0).numpy()
+    if _is_depth(feature):
+        return np.round(hwc).clip(0, 65535).astype(np.uint16)
+    return np.round(hwc * 255).clip(0, 255).astype(np.uint8)
+
+
+def _append(
+    merged, source: _Input, embodiments, galr, extra: list[str], cameras: list[str], progress
+) -> None:
     hand, joint_map = _hand(source, galr), source.layout.joint_maps[0]
     columns = read_columns(source.root, [OBS_STATE, ACTION, *extra, *BOOKKEEPING])
     tasks = {int(row.task_index): task for task, row in source.meta.tasks.iterrows()}
     embodiment = np.array([embodiments.index(hand.name)], np.int64)
+    if cameras:  # decoded frame by frame, as LeRobot serves them
+        frames = LeRobotDataset(f"local/{source.root.name}", root=source.root)
+        position = {int(index): i for i, index in enumerate(frames.hf_dataset["index"])}
 
     def to_layout(values: np.ndarray, key: str) -> np.ndarray:
         body, q = joint_map.split(torch.tensor(values, dtype=torch.float64), key)
@@ -277,6 +320,9 @@ def _append(merged, source: _Input, embodiments, galr, extra: list[str], progres
                 frame[key] = np.asarray(columns[key][row], dtype=dtype).reshape(
                     merged.meta.features[key]["shape"]
                 )
+            if cameras:
+                item = frames[position[int(columns["index"][row])]]
+                frame |= {key: _camera_frame(item[key], merged.meta.features[key]) for key in cameras}
             frame["task"] = tasks[int(columns["task_index"][row])]
             merged.add_frame(frame)
         merged.save_episode()
