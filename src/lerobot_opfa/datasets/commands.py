@@ -1,4 +1,4 @@
-"""`lerobot-opfa dataset ...`: merge, latent, synthetic."""
+"""`lerobot-opfa dataset ...`: merge, latent, clouds, synthetic."""
 
 from __future__ import annotations
 
@@ -36,6 +36,16 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     latent.add_argument("--overwrite", action="store_true")
     latent.set_defaults(func=_latent)
 
+    clouds = dataset.add_parser(
+        "clouds", help="depth dataset -> its clouds, made once through the depth step (fast training)"
+    )
+    clouds.add_argument("--input", type=Path, required=True)
+    clouds.add_argument("--output", type=Path, required=True)
+    clouds.add_argument("--cameras", type=Path, required=True, help="camera calibration YAML (docs/usage.md)")
+    clouds.add_argument("--n-points", type=positive_int, default=1024)
+    clouds.add_argument("--overwrite", action="store_true")
+    clouds.set_defaults(func=_clouds)
+
     synthetic = dataset.add_parser("synthetic", help="a small synthetic per-hand dataset (no simulator)")
     synthetic.add_argument("--hand", required=True)
     synthetic.add_argument("--output", type=Path, required=True)
@@ -57,6 +67,13 @@ def _latent(args: argparse.Namespace) -> None:
     from lerobot_opfa.datasets.latent import latent_dataset
 
     print(f"wrote {_summary(latent_dataset(args.input, args.output, args.overwrite))}")
+
+
+def _clouds(args: argparse.Namespace) -> None:
+    from lerobot_opfa.datasets.clouds import cloud_dataset
+
+    out = cloud_dataset(args.input, args.output, args.cameras, args.n_points, args.overwrite)
+    print(f"wrote {_summary(out)}, clouds of {args.n_points} points from the cameras of {args.cameras}")
 
 
 def _synthetic(args: argparse.Namespace) -> None:

@@ -31,6 +31,7 @@ from lerobot.processor.factory import make_policy_processor_pipelines
 from lerobot.utils.constants import ACTION, OBS_STATE
 
 from lerobot_opfa.datasets import io as dataset_io
+from lerobot_opfa.datasets.clouds import recorded_cameras
 from lerobot_opfa.datasets.io import read_columns
 from lerobot_opfa.datasets.joint_map import JointMap
 from lerobot_opfa.datasets.layout import DatasetLayout, opfa_record, read_layout
@@ -226,11 +227,16 @@ def _frame_statistics(
     return state, column_statistics(out[TransitionKey.ACTION], ids, n_embodiments), floor
 
 
-def depth_step(config: OpfaConfig, meta: Any) -> DepthToPointCloudStep:
-    """The depth step of `config.cameras`, tried on the dataset's first frame: a pose, unit or workspace
-    that puts no point in the workspace is an error now, not a training run on clouds of zeros."""
+def depth_step(config: OpfaConfig, meta: Any) -> DepthToPointCloudStep | None:
+    """The depth step of `config.cameras`, tried on the dataset's first frame (a pose, unit or workspace
+    that puts no point in the workspace is an error now, not a training run on clouds of zeros); or, for a
+    dataset whose clouds `dataset clouds` made, the step they were made with, so that a robot's depth frames
+    take the same path."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
+    if not config.cameras:
+        recorded = recorded_cameras(meta.root)
+        return None if recorded is None else DepthToPointCloudStep(rig=recorded, n_points=config.n_points)
     step = DepthToPointCloudStep(rig=DepthRig.load(config.cameras).to_dict(), n_points=config.cloud_points)
     first = LeRobotDataset(meta.repo_id, root=meta.root, episodes=[0])[0]
     try:
@@ -275,7 +281,7 @@ def make_opfa_pre_post_processors(
         config.validate_features()  # the depth features become the cloud the depth step makes
     layout, galr = resolve_config(config, meta)
     check_trainable_frames(config, layout, Path(meta.root))
-    depth = [depth_step(config, meta)] if config.cameras else []
+    depth = [step for step in [depth_step(config, meta)] if step is not None]
     cached = galr is not None and layout.latent_dim > 0  # policy_galr checked that this GaLR made them
     shared = dict(
         action_space=config.action_space,

@@ -1,0 +1,73 @@
+"""`lerobot-opfa dataset clouds`: a depth dataset's clouds made once, through the depth step itself, into a
+numeric dataset (state, action, `observation.pointcloud`, the other numeric features), which
+`lerobot-opfa train` holds in memory: decoding two frames of depth video for every sample of every step is
+most of a training step otherwise. The calibration is recorded (`meta/opfa.json` `cameras`), so a policy
+trained on it still takes a robot's depth frames through the same step."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+from lerobot.datasets.lerobot_dataset import LeRobotDataset
+from tqdm import tqdm
+
+from lerobot_opfa.datasets.io import check_dataset_folder, check_outside_inputs, new_dataset, read_columns
+from lerobot_opfa.datasets.layout import OPFA_META_FILE, opfa_record
+from lerobot_opfa.datasets.merge import BOOKKEEPING, NUMERIC
+from lerobot_opfa.features import OBS_POINTCLOUD
+from lerobot_opfa.pointclouds import DepthRig
+from lerobot_opfa.policy.depth_step import DepthToPointCloudStep
+
+
+def cloud_dataset(
+    source: Path | str, output: Path | str, cameras: Path | str, n_points: int = 1024, overwrite: bool = False
+) -> Path:
+    """Writes `output` (atomically): `source`'s numeric frames plus the cloud of each frame's depth."""
+    (source,) = check_outside_inputs([source], output)
+    check_dataset_folder(source)
+    frames = LeRobotDataset(f"local/{source.name}", root=source)
+    rig = DepthRig.load(cameras)
+    missing = [k for k in rig.cameras if k not in frames.meta.features]
+    if missing:
+        raise ValueError(f"{cameras} calibrates {missing}, which {source} does not have")
+    step = DepthToPointCloudStep(rig=rig.to_dict(), n_points=n_points)
+    numeric = [k for k, f in frames.meta.features.items() if f["dtype"] in NUMERIC and k not in BOOKKEEPING]
+    features = {
+        k: {**frames.meta.features[k], "shape": tuple(frames.meta.features[k]["shape"])} for k in numeric
+    }
+    features[OBS_POINTCLOUD] = {"dtype": "float32", "shape": (3 * n_points,), "names": None}
+    columns = read_columns(source, [*numeric, *BOOKKEEPING])
+    position = {int(index): i for i, index in enumerate(frames.hf_dataset["index"])}
+    tasks = {int(row.task_index): task for task, row in frames.meta.tasks.iterrows()}
+    create = dict(repo_id=f"local/{Path(output).name}", fps=frames.meta.fps, features=features,
+                  robot_type=frames.meta.robot_type, use_videos=False)  # fmt: skip
+    with new_dataset(output, overwrite, **create) as dataset:
+        episodes = columns["episode_index"]
+        with tqdm(total=len(episodes), desc="depth to clouds", unit="frame") as progress:
+            for episode in dict.fromkeys(episodes.tolist()):
+                rows = np.flatnonzero(episodes == episode)
+                for row in rows[np.argsort(columns["frame_index"][rows])]:
+                    item = frames[position[int(columns["index"][row])]]
+                    cloud = step.observation({k: item[k] for k in rig.cameras})[OBS_POINTCLOUD]
+                    frame = {k: _value(columns[k][row], features[k]) for k in numeric}
+                    frame[OBS_POINTCLOUD] = cloud.to(torch.float32).numpy()
+                    frame["task"] = tasks[int(columns["task_index"][row])]
+                    dataset.add_frame(frame)
+                    progress.update()
+                dataset.save_episode()
+        dataset.finalize()
+        record = opfa_record(source) | {"cameras": rig.to_dict(), "clouds_of": str(source)}
+        (dataset.root / OPFA_META_FILE).write_text(json.dumps(record, indent=2))
+    return Path(output)
+
+
+def recorded_cameras(root: Path | str | None) -> dict | None:
+    """The calibration a dataset's clouds were made with (`cloud_dataset`), if they were."""
+    return opfa_record(root).get("cameras")
+
+
+def _value(value, feature: dict) -> np.ndarray:
+    return np.asarray(value, dtype=feature["dtype"]).reshape(feature["shape"])
