@@ -183,3 +183,36 @@ def test_depth_datasets_of_two_hands_merge_with_their_frames_and_train_one_polic
     assert torch.equal(frames[3][KEYS[1]], source[3][KEYS[1]])  # millimetres, as recorded
     done = _train(merged, tmp_path / "out", f"--policy.cameras={calibration}", "--policy.action_space=galr")
     assert done.returncode == 0, done.stderr[-3000:]
+
+
+def test_clouds_made_once_train_in_memory_and_the_checkpoint_still_takes_depth_frames(rig, tmp_path, capsys):
+    from lerobot.policies.factory import make_pre_post_processors
+
+    from lerobot_opfa import cli
+    from lerobot_opfa.policy.modeling_opfa import OpfaPolicy
+
+    root, calibration, _ = rig
+    clouds = tmp_path / "clouds"
+    argv = ["dataset", "clouds", "--input", str(root), "--output", str(clouds), "--cameras", str(calibration)]
+    assert cli.main([*argv, "--n-points", "64"]) == 0
+    converted = LeRobotDataset("local/clouds", root=clouds)
+    assert not any(k in converted.meta.features for k in KEYS)
+    step = DepthToPointCloudStep(rig=DepthRig.load(calibration).to_dict(), n_points=64)
+    frame = LeRobotDataset("local/rig", root=root)[0]
+    made = step.observation({k: frame[k] for k in KEYS})[OBS_POINTCLOUD]
+    assert torch.equal(converted[0][OBS_POINTCLOUD], made)  # the step's own cloud, frame for frame
+    policy = {"type": "opfa", "action_space": "raw", "device": "cpu", "push_to_hub": "false", "horizon": 8,
+              "down_dims": "[16,32]", "n_action_steps": 4, "pointcloud_widths": "[8,16]",
+              "pointcloud_feature_dim": 8}  # fmt: skip
+    train = ["train", *(f"--policy.{k}={v}" for k, v in policy.items()), "--dataset.repo_id=local/clouds",
+             f"--dataset.root={clouds}", "--steps=2", "--batch_size=2", "--save_freq=2",
+             f"--output_dir={tmp_path / 'out'}", "--wandb.enable=false"]  # fmt: skip
+    assert cli.main(train) == 0, capsys.readouterr().err[-2000:]
+    checkpoint = tmp_path / "out" / "checkpoints" / "last" / "pretrained_model"
+    loaded = OpfaPolicy.from_pretrained(checkpoint)
+    pre, post = make_pre_post_processors(loaded.config, pretrained_path=str(checkpoint))
+    observation = {k: torch.from_numpy(frame[k].numpy().round().astype(np.uint16))[None] for k in KEYS}
+    observation["observation.state"] = frame["observation.state"][None]
+    with torch.no_grad():
+        action = post(loaded.select_action(pre(observation)))
+    assert action.shape == (1, 7) and action.isfinite().all()
