@@ -460,7 +460,10 @@ def test_a_robot_state_beyond_its_joint_limits_a_missing_or_unflattened_cloud_ar
     policy, pre, post, _ = make_policy(data, "inspire", action_space="raw")
     observation = native_observation("inspire", torch.zeros(32 * 3))
     state = observation["observation.state"].clone()
-    state[6 + load_hand("inspire").joint_names.index("index_mcp_flex")] = 50.0  # limit 1.47 rad
+    joint = 6 + load_hand("inspire").joint_names.index("index_mcp_flex")
+    state[joint] = 1.47 * 1.1  # a reading past the limit by contact passes
+    pre({**observation, "observation.state": state.clone()})
+    state[joint] = 50.0  # limit 1.47 rad: other units
     with pytest.raises(ValueError, match=r"joint 'index_mcp_flex' of hand 'inspire' is outside .*worst 50"):
         pre({**observation, "observation.state": state})
     with pytest.raises(ValueError, match=r"has shape \(32, 3\); give it flattened: \(\.\.\., 96\)"):

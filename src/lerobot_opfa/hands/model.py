@@ -25,6 +25,9 @@ from lerobot_opfa.hands.universal import UNIVERSAL_INDEX, UNIVERSAL_JOINTS
 DEFAULT_MIN_POINTS_PER_LINK = 8
 POSING_CHUNK_BYTES = 1 << 20
 LIMIT_TOLERANCE = 0.05
+LIVE_LIMIT_TOLERANCE = 0.5
+"""A robot's live reading goes past its limits by contact and calibration (the simulated umi jaw by 5 % of
+its range when it closes on the button); only a reading in other units is refused at inference."""
 """How far past a joint limit a recorded value may lie, as a share of the joint's range (a simulator's
 or a servo's overshoot), before it is refused as a wrong unit or column."""
 
@@ -259,9 +262,9 @@ class HandModel:
                 f"got {tuple(q.shape)}"
             )
 
-    def check_within_limits(self, q: torch.Tensor, source: str) -> None:
+    def check_within_limits(self, q: torch.Tensor, source: str, tolerance: float = LIMIT_TOLERANCE) -> None:
         """Refuses joint values (B, dof) from `source` that are not finite or lie beyond the model's limits
-        by more than `LIMIT_TOLERANCE` of the joint's range (a recording in other units, or the wrong
+        by more than `tolerance` of the joint's range (a recording in other units, or the wrong
         columns): the GaLR would encode them without a word, into latents no policy should learn."""
         self._check_joints(q)
         q = q.detach().to("cpu", torch.float64)
@@ -273,7 +276,7 @@ class HandModel:
                 f"{int(bad.any(1).sum())} of {len(q)} frames, first in joint '{joint}'"
             )
         lower, upper = self._lower, self._upper
-        slack = LIMIT_TOLERANCE * (upper - lower)
+        slack = tolerance * (upper - lower)
         beyond = (lower - slack - q).maximum(q - upper - slack)
         outside = beyond > 0
         if outside.any():

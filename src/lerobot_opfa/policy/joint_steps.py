@@ -30,7 +30,7 @@ from lerobot_opfa.datasets.joint_map import JointMap
 from lerobot_opfa.features import OBS_EMBODIMENT, OBS_HAND, OBS_POINTCLOUD, batch_embodiments
 from lerobot_opfa.galr.frozen import encode_joints, encode_universal
 from lerobot_opfa.galr.model import Galr
-from lerobot_opfa.hands.model import HandModel
+from lerobot_opfa.hands.model import LIVE_LIMIT_TOLERANCE, HandModel
 from lerobot_opfa.hands.registry import load_hand, load_spec
 from lerobot_opfa.hands.universal import UNIVERSAL_JOINT_NAMES
 from lerobot_opfa.policy.action_spaces import ACTION_SPACES, ActionSpace
@@ -282,13 +282,13 @@ class OpfaEncodeJointsStep(_HandSpace, ProcessorStep):
         return new
 
     def check_robot_state(self, state: torch.Tensor, index: int, spec_order: bool) -> None:
-        """A robot's joints within its hand's limits: a reading in other units would be encoded into a
-        state the policy never saw, without a word. (NaN is the state guard's, which names the entry.)"""
+        """A robot's joints near its hand's limits: a reading in other units would be encoded into a state
+        the policy never saw, without a word. (NaN is the state guard's, which names the entry.)"""
         q = state[..., self.wrist_dim :] if spec_order else self.maps[index].split(state, OBS_STATE)[1]
         if not q.isfinite().all():
             return
         source = f"{OBS_STATE} of the robot" + ("" if spec_order else f" (through {self.maps[index].source})")
-        self.model(index).check_within_limits(q.reshape(-1, q.shape[-1]), source)
+        self.model(index).check_within_limits(q.reshape(-1, q.shape[-1]), source, LIVE_LIMIT_TOLERANCE)
 
     def forget_last_batch(self) -> None:
         """Its postprocessor partner no longer reads this batch's hand (one the pipeline builder encoded)."""
