@@ -216,3 +216,22 @@ def test_clouds_made_once_train_in_memory_and_the_checkpoint_still_takes_depth_f
     with torch.no_grad():
         action = post(loaded.select_action(pre(observation)))
     assert action.shape == (1, 7) and action.isfinite().all()
+
+
+def test_clouds_of_two_hands_merge_with_the_calibration_they_were_made_with(rig, tmp_path, caplog):
+    from lerobot_opfa.datasets.clouds import cloud_dataset, recorded_cameras
+    from lerobot_opfa.datasets.merge import merge_datasets
+
+    root, calibration, _ = rig
+    inspire, _ = record(tmp_path / "inspire_rig", hand="inspire", episodes=1)
+    clouds = [cloud_dataset(d, tmp_path / f"clouds_{i}", calibration, n_points=64)
+              for i, d in enumerate([root, inspire.parent / "rig"])]  # fmt: skip
+    merged = merge_datasets(clouds, tmp_path / "merged", galr_path="default")
+    assert recorded_cameras(merged) == DepthRig.load(calibration).to_dict()
+    moved = DepthRig.load(calibration).to_dict()
+    moved["workspace"]["high"][2] += 0.1
+    (tmp_path / "moved.yaml").write_text(yaml.safe_dump(moved))
+    elsewhere = cloud_dataset(inspire.parent / "rig", tmp_path / "clouds_moved", tmp_path / "moved.yaml", 64)
+    mixed = merge_datasets([clouds[0], elsewhere], tmp_path / "mixed", galr_path="default")
+    assert recorded_cameras(mixed) is None
+    assert "different camera calibrations" in caplog.text

@@ -31,6 +31,7 @@ from lerobot_opfa.datasets.layout import (
     feature_names,
     hand_entry,
     latent_names,
+    opfa_record,
     read_layout,
 )
 from lerobot_opfa.datasets.statistics import column_statistics, noise_floor, raw_noise, write_statistics
@@ -176,6 +177,9 @@ def merge_datasets(
         }
         if galr is not None:
             meta |= {"galr": checkpoints.record(galr_path), "galr_fingerprint": galr_fingerprint(galr)}
+        cameras = _clouds_calibration(opened)
+        if cameras is not None:
+            meta["cameras"] = cameras
         (partial / OPFA_META_FILE).write_text(json.dumps(meta, indent=2))
     logger.info("merged %d frames of %s into %s", total, embodiments, output)
     return Path(output)
@@ -271,6 +275,21 @@ def _cameras(inputs: list[_Input]) -> dict[str, dict]:
         cameras[key] = {"dtype": "image", "shape": tuple(feature["shape"]), "names": feature["names"],
                         "info": {"is_depth_map": depth}}  # fmt: skip
     return cameras
+
+
+def _clouds_calibration(inputs: list[_Input]) -> dict | None:
+    """The depth cameras the inputs' clouds were made with (`dataset clouds`), kept when all share one, so
+    that a policy trained on the merge takes a robot's depth frames through the same step."""
+    recorded = [opfa_record(i.root).get("cameras") for i in inputs]
+    if all(r is None for r in recorded):
+        return None
+    if all(r == recorded[0] for r in recorded):
+        return recorded[0]
+    logger.warning(
+        "the inputs' clouds were made with different camera calibrations (or some without one): the merged "
+        "dataset records none, so a policy trained on it takes point clouds, not depth frames"
+    )
+    return None
 
 
 def _is_depth(feature: dict) -> bool:
