@@ -46,13 +46,13 @@ FPS, RECORD_S, DEPLOY_S, EVAL_SEED = 20, 6, 5, 1000
 
 
 class Stages:
-    """Runs each stage once: its wall time is saved when it completes, and a stage whose output exists
-    without a saved time was interrupted and is run again from scratch."""
+    """Runs each stage once: its wall time and the package's commit are saved when it completes, and a
+    stage whose output exists without them was interrupted and is run again from scratch."""
 
     def __init__(self, work: Path):
         self.work, self.file = work, work / "stages.json"
         work.mkdir(parents=True, exist_ok=True)
-        self.done: dict[str, float] = json.loads(self.file.read_text()) if self.file.exists() else {}
+        self.done: dict[str, dict] = json.loads(self.file.read_text()) if self.file.exists() else {}
 
     def run(self, name: str, outputs: list[Path], *commands: list[str]) -> None:
         if name in self.done:
@@ -68,7 +68,7 @@ class Stages:
                 done = subprocess.run(command, stdout=out, stderr=subprocess.STDOUT, cwd=self.work)
             if done.returncode != 0:
                 sys.exit(f"stage {name} failed (exit {done.returncode}); its log: {log}")
-        self.done[name] = round(time.perf_counter() - start, 1)
+        self.done[name] = {"wall_s": round(time.perf_counter() - start, 1), "commit": source_commit()}
         self.file.write_text(json.dumps(self.done, indent=2))
 
 
@@ -289,8 +289,7 @@ def main() -> None:
         "train_steps": steps,
         "n_points": args.n_points,
         "galr": args.galr,
-        "stage_wall_s": stages.done,
-        "commit": source_commit(),
+        "stages": stages.done,
         "machine": f"{os.cpu_count()} cores, {platform.machine()}",
     }
     RESULTS.mkdir(parents=True, exist_ok=True)

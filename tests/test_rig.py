@@ -68,13 +68,31 @@ def test_a_checkpoint_trained_on_the_rigs_depth_deploys_with_lerobot_rollout(rec
     assert done.returncode == 0, done.stderr[-3000:]
     checkpoint = tmp_path / "train" / "checkpoints" / "last" / "pretrained_model"
     deploy = tmp_path / "deploy"
-    flags = [f"--policy.path={checkpoint}", "--strategy.type=base", "--duration=2", "--fps=20",
-             "--play_sounds=false", "--return_to_initial_position=false"]  # fmt: skip
+    common = [
+        f"--policy.path={checkpoint}",
+        "--fps=20",
+        "--play_sounds=false",
+        "--return_to_initial_position=false",
+    ]
+    flags = [*common, "--strategy.type=base", "--duration=2"]
     done = lerobot("lerobot_rollout", *rig_flags(deploy, "umi", "--robot.auto_reset=true"), *flags)
     assert done.returncode == 0, done.stderr[-3000:]
     log = [json.loads(line) for line in (deploy / "opfa_sim_episodes.jsonl").open()]
     assert log and all(o["hand"] == "umi" and o["task"] == "press_button" for o in log)
     assert sum(o["steps"] for o in log) >= 10, log  # the policy drove the rig
+    episodic = tmp_path / "episodic"
+    done = lerobot(
+        "lerobot_rollout", *rig_flags(episodic, "umi", "--robot.episode_time_s=1"), *common,
+        "--strategy.type=episodic", "--strategy.reset_to_initial_position=false",
+        "--dataset.repo_id=local/rollout_rig",
+        f"--dataset.root={tmp_path / 'rollout'}", "--dataset.num_episodes=2", "--dataset.episode_time_s=1",
+        "--dataset.reset_time_s=0", "--dataset.single_task=press the button", "--dataset.push_to_hub=false",
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-3000:]
+    log = [json.loads(line) for line in (episodic / "opfa_sim_episodes.jsonl").open()]
+    rollouts = LeRobotDataset("local/rollout_rig", root=tmp_path / "rollout")
+    assert [o["steps"] for o in log] == list(rollouts.meta.episodes["length"]), log  # a scene per episode
+    assert len(log) == 2 and "observation.images.front_depth" in rollouts.meta.features
     done = lerobot("lerobot_rollout", *rig_flags(tmp_path / "other", "inspire"), *flags)
     assert done.returncode != 0
     last = done.stderr.strip().splitlines()[-1]

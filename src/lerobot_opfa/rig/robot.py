@@ -7,7 +7,7 @@ would meet hardware.
 LeRobot's loops have no reset hook: a person resets a real scene in the reset phase. The simulated scene
 resets itself (the task's objects placed as the gym env places them, seed + episode index): with
 `episode_time_s` (the recorder's `--dataset.episode_time_s`, and `--dataset.reset_time_s=0`) at the first
-observation that long after the episode's first step, since LeRobot's loops start no step after it; with
+observation that long after the episode's first, since LeRobot's loops start no step after it; with
 `auto_reset` (a `base` rollout) when the task succeeds or runs out of steps. Each episode's outcome goes to
 a JSON-lines log, since `lerobot-rollout` reports none.
 """
@@ -59,7 +59,7 @@ class OpfaSimRobotConfig(RobotConfig):
     height: int = 96
     episode_time_s: float | None = None
     """The recorder's episode length: the scene resets at the first observation this long after the
-    episode's first step (LeRobot's record and episodic rollout loops start no step after that time)."""
+    episode's first (LeRobot's record and episodic rollout loops start no step after that time)."""
     auto_reset: bool = False
     """Reset when the task succeeds or runs out of steps (for `lerobot-rollout --strategy.type=base`)."""
     episodes_log: Path | None = None
@@ -96,6 +96,7 @@ class OpfaSimRobot(Robot):
         self.episode, self.steps, self.success = 0, 0, False
         self.outcomes: list[dict] = []
         self._episode_start: float | None = None
+        self._observed_at: float | None = None
 
     # --- features --------------------------------------------------------------------------------------
     @cached_property
@@ -174,6 +175,9 @@ class OpfaSimRobot(Robot):
         start, length = self._episode_start, self.config.episode_time_s
         if start is not None and length and time.perf_counter() - start >= length + SLACK_S:
             self._finish("time")
+        self._observed_at = time.perf_counter()
+        if self._episode_start is None and self.episode > 0:  # a loop's first observation of a new scene
+            self._episode_start = self._observed_at
         state = self.env.observation()["agent_pos"]
         observation = {f"{n}{POSITION}": float(v) for n, v in zip(self.joint_names, state, strict=True)}
         for name, depth in zip(self.depth_names, self.depth.depth_images(self.env.data), strict=True):
@@ -190,8 +194,8 @@ class OpfaSimRobot(Robot):
         if missing:
             raise ValueError(f"{self}: the action lacks {missing} (it has {', '.join(action)})")
         vector = np.array([float(action[k]) for k in self.action_features])
-        if self._episode_start is None:  # the scene's clock starts with its first step (not an observation
-            self._episode_start = time.perf_counter()  # a deployment engine takes while it sets up)
+        if self._episode_start is None:  # the first scene's clock starts at the observation its first step
+            self._episode_start = self._observed_at  # answers, not at those an engine takes while it sets up
         _, _, _, truncated, info = self.env.step(vector)
         self.steps += 1
         self.success = self.success or bool(info["is_success"])
