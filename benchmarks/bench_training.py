@@ -38,7 +38,7 @@ import torch  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"
 BIN = Path(sys.executable).parent
-DEMOS = ["--task", "press_button", "--hand", "umi", "--regions", "mid_center", "--episodes", "20",
+DEMOS = ["--task", "press_button", "--regions", "mid_center", "--episodes", "20",
          "--n-points", "256", "--pointcloud-source", "geometry", "--repo-id", "local/demos"]  # fmt: skip
 POLICY = ["--policy.type=opfa", "--policy.action_space=raw", "--policy.pointcloud_widths=[32,64,128]",
           "--policy.optimizer_lr=3e-4", "--batch_size=32"]  # fmt: skip
@@ -55,11 +55,52 @@ MEMORY_REUSE = {"MALLOC_MMAP_THRESHOLD_": str(1 << 30), "MALLOC_TRIM_THRESHOLD_"
 STEP = re.compile(r"step:(\d+) .*?updt_s:([\d.]+) data_s:([\d.]+)")
 
 
-def record_demos(root: Path) -> Path:
+def record_demos(root: Path, hand: str = "umi") -> Path:
     if not (root / "meta" / "info.json").exists():
-        command = [str(BIN / "lerobot-opfa"), "sim", "demos", *DEMOS, "--output-dir", str(root)]
+        command = [
+            str(BIN / "lerobot-opfa"),
+            "sim",
+            "demos",
+            "--hand",
+            hand,
+            *DEMOS,
+            "--output-dir",
+            str(root),
+        ]
         subprocess.run(command, check=True, capture_output=True, env=_env(1))
     return root
+
+
+PATHS = {
+    "single_hand_raw": ("single", "raw"),
+    "single_hand_galr": ("single", "galr"),
+    "merged_galr": ("merged", "galr"),
+    "merged_per_embodiment": ("merged", "per_embodiment"),
+}
+"""Every documented `lerobot-opfa train` path: (dataset, action space). The single-hand dataset is the umi
+demos; the merged one is them and the Inspire's, merged with the GaLR (its z cached per frame)."""
+GALR = "default"
+
+
+def measure_paths(tmp: Path, single: Path, setting: tuple, steps: int, skip: int) -> dict:
+    """samples/s and the data share of a step of each path, at the fast path's best setting."""
+    from lerobot_opfa.datasets.merge import merge_datasets
+
+    inspire = record_demos(tmp / "bench_demos_inspire", "inspire")
+    merged = merge_datasets(
+        [single, inspire], tmp / "bench_merged", GALR, "local/bench_merged", overwrite=True
+    )
+    datasets = {"single": single, "merged": merged}
+    paths = {}
+    for name, (dataset, space) in PATHS.items():
+        policy = [*POLICY[:1], f"--policy.action_space={space}", f"--policy.galr_path={GALR}", *POLICY[2:]]
+        run = train(datasets[dataset], tmp / f"path_{name}", setting, steps, skip, policy)
+        paths[name] = {"samples_per_s": run["samples_per_s"], "data_fraction": run["data_share"],
+                       "update_s": run["update_s"], "data_s": run["data_s"]}  # fmt: skip
+        print(
+            f"{name}: {run['samples_per_s']:6.1f} samples/s, data {100 * run['data_share']:.1f}%", flush=True
+        )
+    return paths
 
 
 def _env(threads: int, memory_reuse: bool = False) -> dict[str, str]:
@@ -67,12 +108,12 @@ def _env(threads: int, memory_reuse: bool = False) -> dict[str, str]:
     return env | MEMORY_REUSE if memory_reuse else env
 
 
-def train(data: Path, out: Path, setting: tuple, steps: int, skip: int) -> dict:
+def train(data: Path, out: Path, setting: tuple, steps: int, skip: int, policy: list[str] = POLICY) -> dict:
     """One training run; its steady-state step times from LeRobot's per-step log."""
     command, workers, threads, memory_reuse = setting
     exe = [str(BIN / "lerobot-train")] if command == "lerobot-train" else [str(BIN / "lerobot-opfa"), "train"]
     args = [
-        *POLICY, f"--dataset.repo_id=local/{data.name}", f"--dataset.root={data}", "--policy.device=cpu",
+        *policy, f"--dataset.repo_id=local/{data.name}", f"--dataset.root={data}", "--policy.device=cpu",
         "--policy.push_to_hub=false", "--wandb.enable=false", "--save_checkpoint=false", "--log_freq=1",
         f"--steps={steps}", "--seed=0", f"--num_workers={workers}", f"--output_dir={out}",
     ]  # fmt: skip
@@ -114,8 +155,24 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3, help="runs per setting (the best is kept)")
     parser.add_argument("--data", type=Path, help="reuse (or record once into) this demos folder")
     parser.add_argument("--note", help="stored in the JSON, e.g. what else ran on the machine")
+    parser.add_argument(
+        "--paths-only", action="store_true", help="measure only `paths`, at training.json's fast setting"
+    )
     args = parser.parse_args()
     load_before = os.getloadavg()
+    if args.paths_only:
+        result = json.loads((RESULTS / "training.json").read_text())
+        fast = result["fast_setting"]
+        setting = ("lerobot-opfa train", fast["num_workers"], fast["torch_threads"], False)
+        with tempfile.TemporaryDirectory() as tmp:
+            single = record_demos(args.data or Path(tmp) / "bench_demos")
+            result["paths"] = measure_paths(Path(tmp), single, setting, args.steps, args.skip)
+        result["paths_run"] = {"steps": args.steps, "skip": args.skip, "galr": GALR, "note": args.note,
+                               "load_average_1_5_15_min_before": load_before,
+                               "load_average_1_5_15_min_after": os.getloadavg()}  # fmt: skip
+        (RESULTS / "training.json").write_text(json.dumps(result, indent=2))
+        plot_paths(result["paths"])
+        return
     with tempfile.TemporaryDirectory() as tmp:
         data = record_demos(args.data or Path(tmp) / "bench_demos")
         frames = json.loads((data / "meta" / "info.json").read_text())["total_frames"]
@@ -129,6 +186,18 @@ def main() -> None:
                     f"data {run['data_s']:.3f} s per step)",
                     flush=True,
                 )
+        best = {}
+        for run in runs:
+            key = _label(run)
+            if key not in best or run["samples_per_s"] > best[key]["samples_per_s"]:
+                best[key] = run
+        settings = list(best.values())
+        candidates = [r for r in settings if not r["memory_reuse_env"]]
+        fast = max(
+            (r for r in candidates if r["command"] != "lerobot-train"), key=lambda r: r["samples_per_s"]
+        )
+        setting = (fast["command"], fast["num_workers"], fast["torch_threads"], False)
+        paths = measure_paths(Path(tmp), data, setting, args.steps, args.skip)
     best = {}
     for run in runs:
         key = _label(run)
@@ -156,7 +225,7 @@ def main() -> None:
         "lerobot_train_with_memory_reuse_samples_per_s": reuse["samples_per_s"],  # informational
         "targets": {"speedup": 2.5, "fast_data_share": 0.05},
         "settings": {
-            "dataset": f"lerobot-opfa sim demos {' '.join(DEMOS)}",
+            "dataset": f"lerobot-opfa sim demos --hand umi {' '.join(DEMOS)}",
             "frames": frames,
             "policy_flags": POLICY,
             "steps_per_run": args.steps,
@@ -172,6 +241,8 @@ def main() -> None:
             "load_average_1_5_15_min_after": os.getloadavg(),
         },
         "note": args.note,
+        "paths": paths,
+        "paths_run": {"steps": args.steps, "skip": args.skip, "galr": GALR, "note": args.note},
         "best_run_per_setting": settings,
         "all_runs": runs,
     }
@@ -182,6 +253,7 @@ def main() -> None:
         f"({result['speedup']:.2f}x), data loading {100 * fast['data_share']:.1f}% of a fast step"
     )
     plot(settings, stock, fast, result["speedup"])
+    plot_paths(paths)
     print(f"wrote {RESULTS}/training.json and .png")
 
 
@@ -212,6 +284,24 @@ def plot(settings: list[dict], stock: dict, fast: dict, speedup: float) -> None:
     fig.suptitle(f"opfa training on {os.cpu_count()} CPU cores: lerobot-train vs the in-memory fast path")
     fig.tight_layout()
     fig.savefig(RESULTS / "training.png", dpi=110)
+
+
+def plot_paths(paths: dict) -> None:
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    names = list(paths)
+    bars = ax.barh(names, [paths[n]["samples_per_s"] for n in names], color="C1")
+    for bar, name in zip(bars, names, strict=True):
+        ax.text(bar.get_width(), bar.get_y() + bar.get_height() / 2,
+                f" {paths[name]['samples_per_s']:.0f} ({100 * paths[name]['data_fraction']:.1f}% data)",
+                va="center", fontsize=8)  # fmt: skip
+    ax.set_xlabel(f"lerobot-opfa train samples per second (batch {BATCH_SIZE})")
+    ax.invert_yaxis()
+    ax.set_title(
+        "every documented training path: samples/s and the share of a step spent on data", fontsize=10
+    )
+    fig.tight_layout()
+    fig.savefig(RESULTS / "training_paths.png", dpi=110)
+    plt.close(fig)
 
 
 if __name__ == "__main__":

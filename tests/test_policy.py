@@ -328,6 +328,23 @@ def test_cached_and_online_latents_agree(data):
         assert torch.allclose(from_cache[key], online[key], atol=1e-5)
 
 
+def test_a_single_hand_galr_dataset_is_encoded_once_and_its_batches_looked_up(data, monkeypatch):
+    _, pre, _, native = make_policy(data, "leap")
+    encoder = next(s for s in pre.steps if isinstance(s, OpfaEncodeJointsStep))
+    batch = batch_of(native, [0, 5, 13, 23])
+    encoded, encode = [], encoder._encode
+    monkeypatch.setattr(
+        encoder, "_encode", lambda index, q: encoded.append(q[..., 0].numel()) or encode(index, q)
+    )
+    cached = _before_normalization(pre, batch)
+    assert encoded == []  # every state and action of the window was in the cache
+    encoder._latent_caches.clear()
+    online = _before_normalization(pre, batch)
+    assert sum(encoded) == batch["observation.state"][..., 0].numel() + batch["action"][..., 0].numel()
+    for key in ("observation.state", "action"):
+        assert torch.allclose(cached[key], online[key], atol=1e-5)
+
+
 NORMALIZATION_CASES = [
     (space, dataset, mode, wrist)
     for space, dataset in (

@@ -18,7 +18,7 @@ from __future__ import annotations
 import gc
 import weakref
 from dataclasses import dataclass, field
-from functools import cached_property
+from functools import cached_property, partial
 from typing import Any
 
 import torch
@@ -35,6 +35,7 @@ from lerobot_opfa.hands.registry import load_hand, load_spec
 from lerobot_opfa.hands.universal import UNIVERSAL_JOINT_NAMES
 from lerobot_opfa.policy.action_spaces import ACTION_SPACES, ActionSpace
 from lerobot_opfa.policy.deferred import defer
+from lerobot_opfa.policy.latent_cache import LatentCache
 
 _ENCODERS: dict[str, weakref.WeakValueDictionary[int, OpfaEncodeJointsStep]] = {}
 """link id -> the live preprocessor steps that have processed a batch (their postprocessor partners read
@@ -126,6 +127,7 @@ class _HandSpace:
             for m, e in zip(self.joint_maps, self.embodiments, strict=True)
         ]
         self._hands: dict[int, HandModel] = {}
+        self._latent_caches: dict[int, LatentCache] = {}
 
     def _spec_order_map(self, ref: str, joint_names: list[str] | None = None) -> JointMap:
         spec = load_spec(ref)
@@ -182,7 +184,15 @@ class _HandSpace:
         return self.galr
 
     def encode(self, index: int, q: torch.Tensor) -> torch.Tensor:
+        cache = self._latent_caches.get(index)
+        return self._encode(index, q) if cache is None else cache.encode(q, partial(self._encode, index))
+
+    def _encode(self, index: int, q: torch.Tensor) -> torch.Tensor:
         return encode_joints(self.galr_on(q.device), self.embodiments[index], q)
+
+    def cache_latents(self, index: int, q: torch.Tensor) -> None:
+        """Encodes hand `index`'s joint rows `q` (N, dof) of a training dataset once (latent_cache.py)."""
+        self._latent_caches[index] = LatentCache(q, partial(self._encode, index))
 
     def encode_universal(self, universal: torch.Tensor, ids: torch.Tensor) -> torch.Tensor:
         return encode_universal(self.galr_on(universal.device), self.embodiments, universal, ids)

@@ -186,13 +186,16 @@ def _frame_statistics(
     columns = [OBS_STATE, ACTION] + ([OBS_EMBODIMENT] if layout.kind == "merged" else [])
     frames = {k: torch.tensor(v, dtype=torch.float32) for k, v in read_columns(root, columns).items()}
     if layout.kind == "native":  # the body entries, then the joints in spec order and units
-        joint_map = layout.joint_maps[0]
+        joint_map, joints = layout.joint_maps[0], []
         for key in (OBS_STATE, ACTION):
             body, q = joint_map.split(frames[key], key)
             encoder.model(0).check_within_limits(q, f"{root} ({key}, through {joint_map.source})")
             frames[key] = torch.cat([body, q], dim=1)
+            joints.append(q)
+        if config.space.uses_galr:  # every frame's z once, not each sample's window at every step
+            encoder.cache_latents(0, torch.cat(joints).to(config.device or "cpu"))
     n = len(frames[OBS_STATE])
-    subsample = config.space.uses_galr and not encoder.use_cached_latents
+    subsample = config.space.uses_galr and not encoder.use_cached_latents and layout.kind == "merged"
     if subsample and n > STATS_MAX_ENCODED_FRAMES:
         keep = torch.randperm(n, generator=torch.Generator().manual_seed(0))[:STATS_MAX_ENCODED_FRAMES]
         frames = {k: v[keep] for k, v in frames.items()}
