@@ -8,6 +8,7 @@ import json
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -97,3 +98,28 @@ def test_a_checkpoint_trained_on_the_rigs_depth_deploys_with_lerobot_rollout(rec
     assert done.returncode != 0
     last = done.stderr.strip().splitlines()[-1]
     assert "the 'umi' robot this policy was trained on has 7" in last and "12 entries" in last, last
+
+
+def test_an_episode_shorter_than_the_tasks_step_budget_is_reported_and_late_success_does_not_count(
+    tmp_path, caplog, monkeypatch
+):
+    from lerobot_opfa.rig.robot import OpfaSimRobot, OpfaSimRobotConfig
+
+    config = OpfaSimRobotConfig(hand="umi", task="press_button", calibration_dir=tmp_path, episode_time_s=0.2)
+    robot = OpfaSimRobot(config)
+    robot.connect()
+    budget = robot.env.task.episode_steps
+    hold = {k: v for k, v in robot.get_observation().items() if k in robot.action_features}
+    for _ in range(3):
+        robot.send_action(hold)
+    time.sleep(0.3)
+    with caplog.at_level("WARNING"):
+        robot.get_observation()  # past episode_time_s: the scene resets
+    assert f"ended after 3 of the task's {budget} steps" in caplog.text
+    step = robot.env.step
+    monkeypatch.setattr(robot.env, "step", lambda a: (*step(a)[:4], {"is_success": robot.steps >= budget}))
+    for _ in range(budget + 1):
+        robot.send_action(hold)
+    robot.disconnect()
+    log = [json.loads(line) for line in robot.episodes_log.open()]
+    assert [o["success"] for o in log] == [False, False] and log[1]["steps"] == budget + 1

@@ -10,6 +10,11 @@ resets itself (the task's objects placed as the gym env places them, seed + epis
 observation that long after the episode's first, since LeRobot's loops start no step after it; with
 `auto_reset` (a `base` rollout) when the task succeeds or runs out of steps. Each episode's outcome goes to
 a JSON-lines log, since `lerobot-rollout` reports none.
+
+The scene moves only when an action arrives, so a loop slower than its fps does not make control harder,
+it makes episodes shorter in steps. Success counts within the task's `episode_steps`, the budget
+`lerobot-eval` gives, and an episode that ends with fewer steps is reported: its length in seconds did not
+cover the task's budget at the loop's achieved rate.
 """
 
 from __future__ import annotations
@@ -198,7 +203,9 @@ class OpfaSimRobot(Robot):
             self._episode_start = self._observed_at  # answers, not at those an engine takes while it sets up
         _, _, _, truncated, info = self.env.step(vector)
         self.steps += 1
-        self.success = self.success or bool(info["is_success"])
+        self.success = self.success or (
+            self.steps <= self.env.task.episode_steps and bool(info["is_success"])
+        )
         if self.config.auto_reset and (
             self.success or truncated or self.steps >= self.env.task.episode_steps
         ):
@@ -216,6 +223,13 @@ class OpfaSimRobot(Robot):
                    "region": self.env.region, "hand": self.env.hand_model.name, "task": self.env.task.name,
                    "success": self.success, "steps": self.steps, "ended": ended}  # fmt: skip
         self.outcomes.append(outcome)
+        budget = self.env.task.episode_steps
+        if ended == "time" and self.steps < budget:
+            logger.warning(
+                f"{self}: episode {self.episode} ended after {self.steps} of the task's {budget} steps "
+                f"(the loop ran at {self.steps / self.config.episode_time_s:.1f} Hz, the scene's is "
+                f"{self.config.fps} Hz); a longer episode_time_s gives the policy lerobot-eval's budget"
+            )
         with self.episodes_log.open("a") as log:
             log.write(json.dumps(outcome) + "\n")
         self.episode += 1
