@@ -42,7 +42,13 @@ from lerobot_opfa.experiments.report import wilson_interval  # noqa: E402
 RESULTS = Path(__file__).parent / "results"
 BIN = Path(sys.executable).parent
 REGION = "mid_center"
-FPS, RECORD_S, DEPLOY_S, EVAL_SEED = 20, 6, 5, 1000
+FPS, RECORD_S, EVAL_SEED = 20, 6, 1000
+DEPLOY_S = 7
+"""A rollout episode's length: the task's 100 steps (the rig counts success within them, as `lerobot-eval`
+does) at any loop rate from 14.3 Hz; a 5 s episode left the policy 55-85 steps at the 15 Hz measured."""
+ROLLOUT_ENV = {**os.environ, "OMP_NUM_THREADS": "1"}
+"""One torch thread in the control loop: on 2 busy cores a loop step of the co-trained policy took 39 ms
+with one and 52 ms with two (the rendering and LeRobot's frame writers share the cores)."""
 
 
 class Stages:
@@ -54,7 +60,7 @@ class Stages:
         work.mkdir(parents=True, exist_ok=True)
         self.done: dict[str, dict] = json.loads(self.file.read_text()) if self.file.exists() else {}
 
-    def run(self, name: str, outputs: list[Path], *commands: list[str]) -> None:
+    def run(self, name: str, outputs: list[Path], *commands: list[str], env: dict | None = None) -> None:
         if name in self.done:
             return
         for path in outputs:
@@ -65,7 +71,7 @@ class Stages:
             log.parent.mkdir(exist_ok=True)
             print(f"[{name}] {' '.join(command)}", flush=True)
             with log.open("a") as out:
-                done = subprocess.run(command, stdout=out, stderr=subprocess.STDOUT, cwd=self.work)
+                done = subprocess.run(command, stdout=out, stderr=subprocess.STDOUT, cwd=self.work, env=env)
             if done.returncode != 0:
                 sys.exit(f"stage {name} failed (exit {done.returncode}); its log: {log}")
         self.done[name] = {"wall_s": round(time.perf_counter() - start, 1), "commit": source_commit()}
@@ -138,7 +144,7 @@ def evaluate(stages: Stages, task: str, hand: str, model: Path, episodes: int, n
         f"--fps={FPS}",
         "--return_to_initial_position=false",
     ]
-    stages.run(f"rollout_{hand}", [deploy, work / "data" / f"rollout_{hand}"], rollout)
+    stages.run(f"rollout_{hand}", [deploy, work / "data" / f"rollout_{hand}"], rollout, env=ROLLOUT_ENV)
     lerobot_eval = [
         str(BIN / "lerobot-eval"),
         f"--policy.path={model}",
@@ -287,6 +293,7 @@ def main() -> None:
         "demos_per_hand": args.demos,
         "merged_frames": frames,
         "train_steps": steps,
+        "rollout_episode_s": DEPLOY_S,
         "n_points": args.n_points,
         "galr": args.galr,
         "stages": stages.done,
