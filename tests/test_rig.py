@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 import pytest
+import torch
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
 ENV = {**os.environ, "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1", "MUJOCO_GL": "egl"}
@@ -31,7 +32,8 @@ def rig_flags(calibration: Path, hand: str = "umi", *extra: str) -> list[str]:
 def recorded(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("rig")
     done = lerobot(
-        "lerobot_record", *rig_flags(root / "calibration", "umi", "--robot.episode_time_s=1.5"),
+        "lerobot_record",
+        *rig_flags(root / "calibration", "umi", "--robot.episode_time_s=1.5", "--robot.rgb_cameras=front"),
         "--teleop.type=opfa_expert",
         "--dataset.repo_id=local/rig", f"--dataset.root={root / 'rig'}", "--dataset.num_episodes=2",
         "--dataset.episode_time_s=1.5", "--dataset.reset_time_s=0", "--dataset.fps=20",
@@ -54,6 +56,47 @@ def test_lerobot_record_with_the_expert_writes_depth_episodes_and_logs_their_out
     assert [o["steps"] for o in log] == list(frames), (log, frames)  # one scene per recorded episode
     frame = dataset[5]["observation.images.front_depth"]
     assert frame.shape == (1, 96, 128) and 200 < float(frame[frame > 0].median()) < 2000  # millimetres
+    colour = dataset[5]["observation.images.front_rgb"]
+    assert colour.shape == (3, 96, 128) and colour.dtype == torch.float32 and colour.std() > 0.05
+
+
+def test_the_in_memory_dataset_serves_the_recorded_video_frames_as_lerobot_does(recorded):
+    from lerobot_opfa.datasets.in_memory import InMemoryDataset
+
+    deltas = {"observation.images.front_rgb": [-0.05, 0.0], "observation.images.front_depth": [-0.05, 0.0],
+              "action": [0.0, 0.05]}  # fmt: skip
+    source = LeRobotDataset("local/rig", root=recorded / "rig", delta_timestamps=deltas)
+    held = InMemoryDataset(source)
+    for index in (0, 7, len(source) - 1):
+        expected, served = source[index], held[index]
+        for key in ("observation.images.front_rgb", "observation.images.front_depth", "action"):
+            assert served[key].dtype == expected[key].dtype and served[key].shape == expected[key].shape
+            assert torch.equal(served[key], expected[key]), (index, key)
+            assert torch.equal(served[f"{key}_is_pad"], expected[f"{key}_is_pad"])
+
+
+def test_an_rgb_policy_trains_on_the_rigs_colour_camera_and_acts_in_lerobot_eval(recorded, tmp_path):
+    policy = {"type": "opfa", "action_space": "raw", "device": "cpu", "push_to_hub": "false", "horizon": 8,
+              "down_dims": "[16,32]", "n_action_steps": 4, "visual_inputs": "rgb",
+              "image_feature_dim": 8}  # fmt: skip
+    command = [sys.executable, "-m", "lerobot_opfa.cli", "train",
+               *(f"--policy.{k}={v}" for k, v in policy.items()), "--dataset.repo_id=local/rig",
+               f"--dataset.root={recorded / 'rig'}", "--steps=2", "--batch_size=2", "--save_freq=2",
+               f"--output_dir={tmp_path / 'train'}", "--wandb.enable=false"]  # fmt: skip
+    done = subprocess.run(command, env=ENV, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    checkpoint = tmp_path / "train" / "checkpoints" / "last" / "pretrained_model"
+    config = json.loads((checkpoint / "config.json").read_text())
+    assert "observation.pointcloud" not in config["input_features"]
+    assert config["input_features"]["observation.images.front_rgb"]["shape"] == [3, 96, 128]
+    done = lerobot(
+        "lerobot_eval", f"--policy.path={checkpoint}", "--env.type=opfa", "--env.task=press_button",
+        "--env.hand=umi", "--env.obs_type=rgb", "--env.episode_length=12", "--eval.n_episodes=1",
+        "--eval.batch_size=1", f"--output_dir={tmp_path / 'eval'}", "--policy.device=cpu",
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-3000:]
+    info = json.loads((tmp_path / "eval" / "eval_info.json").read_text())
+    assert info["overall"]["n_episodes"] == 1
 
 
 def test_a_checkpoint_trained_on_the_rigs_depth_deploys_with_lerobot_rollout(recorded, tmp_path):

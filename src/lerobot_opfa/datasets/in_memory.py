@@ -1,11 +1,12 @@
-"""A numeric LeRobotDataset held in memory, for training that is not bound by dataset reads.
+"""A LeRobotDataset held in memory, for training that is not bound by dataset reads.
 
 `LeRobotDataset.__getitem__` reads every frame's delta-timestamp window row by row from Arrow (a horizon-16
-action window is 16 row reads, converted through Python lists), so on a CPU a training step of a small
-policy spends most of its time there. `InMemoryDataset` reads every column once into an array and serves
-an item, or a whole batch through `__getitems__` (which torch's DataLoader calls when present), by index
-gathers. Items are exactly `LeRobotDataset`'s: the same keys in the same order, dtypes and shapes, windows
-clamped to the episode's bounds with the same `*_is_pad` flags, and the task string.
+action window is 16 row reads, converted through Python lists) and decodes every camera frame of the window
+from video, so on a CPU a training step of a small policy spends most of its time there. `InMemoryDataset`
+reads every column once into an array, decodes every video frame once (colour frames kept as uint8), and
+serves an item, or a whole batch through `__getitems__` (which torch's DataLoader calls when present), by
+index gathers. Items are `LeRobotDataset`'s: the same keys, dtypes and shapes, windows clamped to the
+episode's bounds with the same `*_is_pad` flags, and the task string.
 """
 
 from __future__ import annotations
@@ -16,8 +17,11 @@ import numpy as np
 import torch
 from lerobot.datasets.language import LANGUAGE_COLUMNS
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
+from tqdm import tqdm
 
-_NON_NUMERIC = ("video", "image", "string")
+_NON_NUMERIC = ("image", "string")
+MAX_VIDEO_BYTES = 8 * 2**30
+"""Decoded frames held at most; a larger dataset trains with lerobot-train, which decodes per sample."""
 
 
 class InMemoryDataset(torch.utils.data.Dataset):
@@ -33,14 +37,21 @@ class InMemoryDataset(torch.utils.data.Dataset):
         )
         if unsupported:
             raise ValueError(
-                f"the in-memory fast path is for numeric datasets; {source.repo_id} has non-numeric features "
+                f"the in-memory fast path is for numeric and video features; {source.repo_id} has others "
                 f"({', '.join(unsupported)}): train it with lerobot-train"
+            )
+        if source.reader._image_transforms is not None:
+            raise ValueError(
+                "the in-memory fast path serves frames as recorded; train with image transforms "
+                "(--dataset.image_transforms.enable=true) through lerobot-train"
             )
         self.source = source
         self.meta = source.meta
         self.episodes = source.episodes
         self.absolute_to_relative_idx = source.absolute_to_relative_idx
         self._columns = _read_columns(source.hf_dataset, source[0] if len(source) else {})
+        self._colour = {k for k in source.meta.video_keys if k not in source.meta.depth_keys}
+        self._columns |= _read_videos(source, self._columns, self._colour)
         self._tasks = list(source.meta.tasks.index)
         self._windows = self._build_windows(source.reader.delta_indices or {})
 
@@ -117,6 +128,8 @@ class InMemoryDataset(torch.utils.data.Dataset):
         for key, column in self._columns.items():
             window = self._windows.get(key)
             batch[key] = torch.from_numpy(column[rows if window is None else window[0][rows]])
+            if key in self._colour:  # LeRobot serves colour frames as float32 in [0, 1]
+                batch[key] = batch[key].to(torch.float32).div_(255)
         for key, (_, pad) in self._windows.items():
             batch[f"{key}_is_pad"] = torch.from_numpy(pad[rows])
         tasks = [self._tasks[i] for i in batch["task_index"].tolist()]
@@ -144,3 +157,34 @@ def _read_columns(hf_dataset, reference: dict) -> dict[str, np.ndarray]:
             column = column.to(expected.dtype)
         columns[key] = column.numpy()
     return columns
+
+
+def _read_videos(source: LeRobotDataset, columns: dict[str, np.ndarray], colour: set[str]) -> dict:
+    """Every frame of every video feature, in row order, decoded once by LeRobot's own reader (depth maps
+    dequantised as it serves them); colour frames as uint8 (they were recorded as such), depth as float32."""
+    keys = list(source.meta.video_keys)
+    if not keys:
+        return {}
+    n_frames = len(columns["index"])
+    frame_bytes = sum(
+        int(np.prod(source.meta.features[k]["shape"])) * (1 if k in colour else 4) for k in keys
+    )
+    if n_frames * frame_bytes > MAX_VIDEO_BYTES:
+        raise ValueError(
+            f"{source.repo_id}'s {n_frames} video frames take {n_frames * frame_bytes / 2**30:.1f} GiB "
+            f"decoded (more than {MAX_VIDEO_BYTES / 2**30:.0f}): train it with lerobot-train"
+        )
+    videos: dict[str, np.ndarray] = {}
+    episodes, timestamps = columns["episode_index"], columns["timestamp"]
+    for episode in tqdm(np.unique(episodes), desc="decoding video", unit="episode", leave=False):
+        rows = np.flatnonzero(episodes == episode)
+        query = {k: timestamps[rows].astype(np.float64).tolist() for k in keys}
+        frames = source.reader._query_videos(query, int(episode))  # LeRobot's decode and dequantise
+        for key, value in frames.items():
+            value = value.reshape(len(rows), *value.shape[-3:]).numpy()
+            if key in colour:
+                value = np.rint(value * 255).astype(np.uint8)
+            if key not in videos:
+                videos[key] = np.empty((n_frames, *value.shape[1:]), dtype=value.dtype)
+            videos[key][rows] = value
+    return videos

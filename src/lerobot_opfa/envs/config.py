@@ -10,7 +10,7 @@ import gymnasium as gym
 from lerobot.configs import FeatureType, PolicyFeature
 from lerobot.envs.configs import EnvConfig
 from lerobot.processor import ObservationProcessorStep, PolicyProcessorPipeline
-from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
+from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGES, OBS_STATE
 
 from lerobot_opfa.envs.env import OBS_TYPES, POINTCLOUD_SOURCES, check_choice, parse_cameras
 from lerobot_opfa.envs.regions import parse_regions
@@ -42,10 +42,13 @@ class OpfaEnvConfig(EnvConfig):
     task: str | None = "lift"
     hand: str = "leap"  # a built-in hand name or a path to a spec.yaml
     regions: str = "all"  # comma-separated region names (`lerobot-opfa sim regions`), or "all"
-    obs_type: str = "pointcloud"  # pointcloud | state | pointcloud_state
+    obs_type: str = "pointcloud"  # pointcloud | state | pointcloud_state | rgb | pointcloud_rgb
     pointcloud_source: str = "depth"  # depth (simulated cameras) | geometry (sampled, faster)
     n_points: int = 1024
     depth_cameras: str = "front"  # comma-separated: front, left, right (one render each per step)
+    rgb_cameras: str = "front"  # with rgb obs types: colour cameras, `observation.images.<name>_rgb`
+    camera_width: int = 128  # of the colour cameras (the rig's default size)
+    camera_height: int = 96
     fps: int = 20
     episode_length: int | None = None  # steps; None: the task's default
     render_width: int = 320
@@ -59,6 +62,7 @@ class OpfaEnvConfig(EnvConfig):
         check_choice("obs_type", self.obs_type, OBS_TYPES)
         check_choice("pointcloud source", self.pointcloud_source, POINTCLOUD_SOURCES)
         parse_cameras(self.depth_cameras)
+        parse_cameras(self.rgb_cameras)
         dim = len(WRIST_JOINTS) + len(load_spec(self.hand).joints)
         self.features = {ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(dim,))}
         self.features["agent_pos"] = PolicyFeature(type=FeatureType.STATE, shape=(dim,))
@@ -69,6 +73,13 @@ class OpfaEnvConfig(EnvConfig):
         if "state" in self.obs_type:
             self.features["environment_state"] = PolicyFeature(type=FeatureType.ENV, shape=(ENV_STATE_DIM,))
             self.features_map["environment_state"] = OBS_ENV_STATE
+        if "rgb" in self.obs_type:
+            for camera in parse_cameras(self.rgb_cameras):
+                key = f"pixels/{camera}_rgb"
+                self.features[key] = PolicyFeature(
+                    type=FeatureType.VISUAL, shape=(self.camera_height, self.camera_width, 3)
+                )
+                self.features_map[key] = f"{OBS_IMAGES}.{camera}_rgb"
 
     def get_env_processors(self) -> tuple[PolicyProcessorPipeline, PolicyProcessorPipeline]:
         """Tells the policy which hand the observations come from, so a cross-embodiment policy picks the
@@ -95,6 +106,9 @@ class OpfaEnvConfig(EnvConfig):
             "pointcloud_source": self.pointcloud_source,
             "n_points": self.n_points,
             "depth_cameras": self.depth_cameras,
+            "rgb_cameras": self.rgb_cameras,
+            "camera_width": self.camera_width,
+            "camera_height": self.camera_height,
             "fps": self.fps,
             "render_width": self.render_width,
             "render_height": self.render_height,

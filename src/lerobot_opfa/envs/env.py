@@ -8,7 +8,7 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
-from lerobot_opfa.envs.observation import DepthPointCloud, GeometryPointCloud
+from lerobot_opfa.envs.observation import ColourCameras, DepthPointCloud, GeometryPointCloud
 from lerobot_opfa.envs.regions import REGIONS, parse_regions
 from lerobot_opfa.envs.scene import (
     DEPTH_CAMERAS,
@@ -25,7 +25,7 @@ from lerobot_opfa.hands.registry import load_hand
 
 logger = logging.getLogger(__name__)
 
-OBS_TYPES = ("pointcloud", "state", "pointcloud_state")
+OBS_TYPES = ("pointcloud", "state", "pointcloud_state", "rgb", "pointcloud_rgb")
 POINTCLOUD_SOURCES = ("depth", "geometry")
 SETTLE_STEPS = 20  # physics steps after reset so objects come to rest
 
@@ -37,7 +37,8 @@ def check_choice(kind: str, value: str, valid: tuple[str, ...] | list[str]) -> s
 
 
 def parse_cameras(cameras: str | list[str]) -> list[str]:
-    """'front', 'front,left' or a list -> validated depth camera names."""
+    """'front', 'front,left' or a list -> validated camera names (the scene's depth cameras, which also
+    take colour pictures)."""
     names = [c.strip() for c in cameras.split(",")] if isinstance(cameras, str) else list(cameras)
     return [check_choice("depth camera", name, list(DEPTH_CAMERAS)) for name in names]
 
@@ -49,7 +50,8 @@ class OpfaSimEnv(gym.Env):
     pitch, roll in radians; the approach axis points down at zero angles) followed by the hand's actuated
     joints in its spec's order. Actions are absolute position targets. `pointcloud` is (n_points * 3,)
     world-frame xyz, flattened so LeRobot datasets built from it can be merged; `environment_state` is the
-    task's object state (`tasks.ENV_STATE_DIM`).
+    task's object state (`tasks.ENV_STATE_DIM`); `pixels` (obs types with `rgb`) holds each of
+    `rgb_cameras` as `<name>_rgb`, (camera_height, camera_width, 3) uint8, as the rig records them.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
@@ -63,6 +65,9 @@ class OpfaSimEnv(gym.Env):
         pointcloud_source: str = "depth",
         n_points: int = 1024,
         depth_cameras: str | list[str] = "front",
+        rgb_cameras: str | list[str] = "front",
+        camera_width: int = 128,
+        camera_height: int = 96,
         fps: int = 20,
         render_mode: str = "rgb_array",
         render_width: int = 320,
@@ -74,6 +79,8 @@ class OpfaSimEnv(gym.Env):
         self.obs_type = check_choice("obs_type", obs_type, OBS_TYPES)
         self.pointcloud_source = check_choice("pointcloud source", pointcloud_source, POINTCLOUD_SOURCES)
         self.depth_cameras = parse_cameras(depth_cameras)
+        self.rgb_cameras = parse_cameras(rgb_cameras)
+        self.camera_size = (camera_height, camera_width)
         self.n_points, self.render_mode = n_points, render_mode
         self.render_size = (render_height, render_width)
         self.metadata = {**self.metadata, "render_fps": fps}
@@ -102,9 +109,13 @@ class OpfaSimEnv(gym.Env):
             spaces["pointcloud"] = gym.spaces.Box(-np.inf, np.inf, (n_points * 3,), np.float32)
         if "state" in self.obs_type:
             spaces["environment_state"] = gym.spaces.Box(-np.inf, np.inf, (ENV_STATE_DIM,), np.float64)
+        if "rgb" in self.obs_type:
+            picture = gym.spaces.Box(0, 255, (*self.camera_size, 3), np.uint8)
+            spaces["pixels"] = gym.spaces.Dict({f"{c}_rgb": picture for c in self.rgb_cameras})
         self.observation_space = gym.spaces.Dict(spaces)
 
         self._cloud: DepthPointCloud | GeometryPointCloud | None = None
+        self._colour: ColourCameras | None = None
         self._renderer: mujoco.Renderer | None = None
         self._picture_option = mujoco.MjvOption()  # what pictures show: the default groups and the scenery
         self._picture_option.geomgroup[SCENERY_GROUP] = 1
@@ -139,6 +150,11 @@ class OpfaSimEnv(gym.Env):
             obs["pointcloud"] = self._point_cloud()
         if "state" in self.obs_type:
             obs["environment_state"] = self.task.env_state(self.scene, self.data)
+        if "rgb" in self.obs_type:
+            if self._colour is None:
+                height, width = self.camera_size
+                self._colour = ColourCameras(self.model, self.rgb_cameras, width, height)
+            obs["pixels"] = {f"{c}_rgb": image for c, image in self._colour.images(self.data).items()}
         return obs
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -181,6 +197,9 @@ class OpfaSimEnv(gym.Env):
         if self._cloud is not None:
             self._cloud.close()
             self._cloud = None
+        if self._colour is not None:
+            self._colour.close()
+            self._colour = None
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None

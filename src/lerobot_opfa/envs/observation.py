@@ -19,6 +19,31 @@ from lerobot_opfa.pointclouds import WORKSPACE_LOW, PinholeCamera, back_project,
 DEPTH_QUALITY = {"numslices": 12, "numstacks": 6, "numquads": 1, "offsamples": 0}
 
 
+class ColourCameras:
+    """Colour images (H, W, 3) uint8 of some of the scene's cameras (`scene.DEPTH_CAMERAS`, the depth
+    cameras' poses): what the rig records as `<name>_rgb` and the env gives as `pixels`, from one renderer so
+    that a policy trained on one sees the same pictures in the other. Shadows and reflections off: under
+    software GL they make a frame several times slower."""
+
+    def __init__(self, model: mujoco.MjModel, cameras: list[str], width: int = 128, height: int = 96) -> None:
+        self.renderer = mujoco.Renderer(model, height=height, width=width)
+        self.renderer.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
+        self.renderer.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = False
+        self.names = list(cameras)
+        self.cameras = [model.camera(f"depth_{name}").id for name in cameras]
+
+    def images(self, data: mujoco.MjData) -> dict[str, np.ndarray]:
+        """Camera name -> (H, W, 3) uint8."""
+        images = {}
+        for name, cam in zip(self.names, self.cameras, strict=True):
+            self.renderer.update_scene(data, camera=cam)
+            images[name] = self.renderer.render().copy()
+        return images
+
+    def close(self) -> None:
+        self.renderer.close()
+
+
 class DepthPointCloud:
     """Depth images of some of the scene's depth cameras (`scene.DEPTH_CAMERAS`), back-projected to world
     points. Each camera costs one render (about 1 ms on a CPU under software GL for a dexterous hand)."""

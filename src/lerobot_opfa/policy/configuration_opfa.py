@@ -18,8 +18,10 @@ from lerobot.utils.constants import ACTION, OBS_STATE
 from lerobot_opfa.features import OBS_POINTCLOUD
 from lerobot_opfa.pointclouds import DepthRig
 from lerobot_opfa.policy.action_spaces import ACTION_SPACES, ActionSpace
+from lerobot_opfa.policy.image_encoder import IMAGE_BACKBONES
 
 WRIST_NORMALIZATIONS = ("per_embodiment", "shared")
+VISUAL_INPUTS = ("pointcloud", "rgb", "pointcloud_rgb")
 
 
 @PreTrainedConfig.register_subclass("opfa")
@@ -72,6 +74,19 @@ class OpfaConfig(PreTrainedConfig):
     """Leading state/action entries that are not hand joints (the wrist pose)."""
     latent_dim: int | None = None
 
+    visual_inputs: str = "pointcloud"
+    """What the policy sees besides the robot's state: `pointcloud` (DP3: `observation.pointcloud`, or the
+    cloud `cameras` makes from depth), `rgb` (the colour cameras, `observation.images.*` of 3 channels,
+    through `image_encoder`) or `pointcloud_rgb` (both). The action space does not change."""
+    image_backbone: str = "small"
+    """`small` (four strided convolutions, 6.7x the training samples/s of a ResNet-18 on a CPU) or
+    `resnet18` (LeRobot's diffusion policy's, GroupNorm from scratch): see `image_encoder`."""
+    image_backbone_weights: str | None = None
+    """torchvision weights of the ResNet-18 (e.g. ResNet18_Weights.IMAGENET1K_V1) where installed."""
+    image_feature_dim: int = 64
+    image_crop_ratio: float = 0.9
+    """Side of the random training crop (centre crop at inference), as a fraction of the image's."""
+
     # DP3 point encoder
     pointcloud_widths: tuple[int, ...] = (64, 128, 256)
     pointcloud_feature_dim: int = 64
@@ -119,6 +134,8 @@ class OpfaConfig(PreTrainedConfig):
         self.optimizer_betas = tuple(self.optimizer_betas)
         for name, value, valid in (
             ("action_space", self.action_space, ACTION_SPACES),
+            ("visual_inputs", self.visual_inputs, VISUAL_INPUTS),
+            ("image_backbone", self.image_backbone, IMAGE_BACKBONES),
             ("wrist_normalization", self.wrist_normalization, WRIST_NORMALIZATIONS),
             ("prediction_type", self.prediction_type, ("sample", "epsilon")),
             ("beta_schedule", self.beta_schedule, ("squaredcos_cap_v2", "linear")),
@@ -127,6 +144,8 @@ class OpfaConfig(PreTrainedConfig):
                 raise ValueError(f"`{name}` must be one of {list(valid)}, got '{value}'")
         if self.cloud_points < 1:
             raise ValueError(f"`cloud_points` must be positive, got {self.cloud_points}")
+        if not 0.1 <= self.image_crop_ratio <= 1:
+            raise ValueError(f"`image_crop_ratio` must be in [0.1, 1], got {self.image_crop_ratio}")
         factor = 2 ** (len(self.down_dims) - 1)
         if self.horizon % factor:
             raise ValueError(
@@ -185,23 +204,54 @@ class OpfaConfig(PreTrainedConfig):
             decay_lr=self.optimizer_lr * 0.01,
         )
 
+    @property
+    def uses_pointcloud(self) -> bool:
+        return "pointcloud" in self.visual_inputs
+
+    @property
+    def uses_rgb(self) -> bool:
+        return "rgb" in self.visual_inputs
+
+    @property
+    def image_keys(self) -> list[str]:
+        """The colour cameras the policy reads (with `rgb`): every visual input of 3 channels."""
+        if not self.uses_rgb:
+            return []
+        inputs = self.input_features or {}
+        return sorted(k for k, f in inputs.items() if f.type is FeatureType.VISUAL and f.shape[0] == 3)
+
     def validate_features(self) -> None:
         inputs = self.input_features or {}
-        if OBS_POINTCLOUD not in inputs and self.cameras:
+        if self.uses_pointcloud and OBS_POINTCLOUD not in inputs and self.cameras:
             self._cloud_from_depth(inputs)
-        missing = [k for k in (OBS_STATE, OBS_POINTCLOUD) if k not in inputs]
+        needed = [OBS_STATE] + ([OBS_POINTCLOUD] if self.uses_pointcloud else [])
+        missing = [k for k in needed if k not in inputs]
         if missing or ACTION not in (self.output_features or {}):
             depth = [k for k, f in inputs.items() if f.type is FeatureType.VISUAL and f.shape[0] == 1]
             hint = (
                 f"; give the depth cameras {depth} their calibration: --policy.cameras=FILE" if depth else ""
             )
             raise ValueError(
-                f"the opfa policy needs inputs {OBS_STATE} and {OBS_POINTCLOUD} and output {ACTION}; "
-                f"missing {missing + ([] if ACTION in (self.output_features or {}) else [ACTION])}{hint}"
+                f"the opfa policy with visual_inputs={self.visual_inputs} needs inputs {needed} and output "
+                f"{ACTION}; missing {missing + ([] if ACTION in (self.output_features or {}) else [ACTION])}"
+                f"{hint}"
             )
-        shape = tuple(inputs[OBS_POINTCLOUD].shape)
-        if len(shape) != 1 or shape[0] % 3:
-            raise ValueError(f"{OBS_POINTCLOUD} must be flattened xyz of shape (N*3,), got {shape}")
+        if self.uses_rgb and not self.image_keys:
+            visual = {k: tuple(f.shape) for k, f in inputs.items() if f.type is FeatureType.VISUAL}
+            raise ValueError(
+                f"visual_inputs={self.visual_inputs} needs colour cameras (observation.images.* of shape "
+                f"(3, H, W)); the inputs have {visual or 'no cameras'}"
+            )
+        shapes = {tuple(inputs[k].shape) for k in self.image_keys}
+        if len(shapes) > 1:
+            raise ValueError(f"the colour cameras {self.image_keys} differ in size ({sorted(shapes)})")
+        unread = [k for k, f in inputs.items() if f.type is FeatureType.VISUAL and k not in self.image_keys]
+        for key in unread:  # cameras the policy does not read: a robot need not have them to run it
+            del inputs[key]
+        if self.uses_pointcloud:
+            shape = tuple(inputs[OBS_POINTCLOUD].shape)
+            if len(shape) != 1 or shape[0] % 3:
+                raise ValueError(f"{OBS_POINTCLOUD} must be flattened xyz of shape (N*3,), got {shape}")
 
     def _cloud_from_depth(self, inputs: dict[str, PolicyFeature]) -> None:
         """The calibrated depth features leave the inputs; the cloud the depth step makes from them enters."""

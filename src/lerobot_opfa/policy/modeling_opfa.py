@@ -1,5 +1,5 @@
-"""`OpfaPolicy`: DP3 in GaLR space. Point-cloud features and the (wrist + z) state of the last
-`n_obs_steps` frames condition a U-Net that denoises a chunk of (wrist + z) actions with DDIM.
+"""`OpfaPolicy`: DP3 in GaLR space. Point-cloud (or colour camera) features and the (wrist + z) state of the
+last `n_obs_steps` frames condition a U-Net that denoises a chunk of (wrist + z) actions with DDIM.
 
 The policy never sees joints: the preprocessor maps them to its space and the postprocessor back, so the
 same network serves a 1-DoF gripper and a 16-DoF hand.
@@ -22,6 +22,7 @@ from lerobot_opfa.hands.registry import load_spec
 from lerobot_opfa.policy.configuration_opfa import OpfaConfig
 from lerobot_opfa.policy.diffusion import ConditionalUnet1d, Ddim
 from lerobot_opfa.policy.fast_sampling import FastSampler
+from lerobot_opfa.policy.image_encoder import ImageEncoder
 from lerobot_opfa.policy.processor_opfa import resolve_config
 
 
@@ -56,8 +57,24 @@ class OpfaPolicy(PreTrainedPolicy):
             raise ValueError("an opfa policy is built from a dataset (dataset_meta) or a trained checkpoint")
         self.config = config
         width = config.policy_width
-        self.point_encoder = PointNetEncoder(
-            config.pointcloud_feature_dim, config.pointcloud_widths, in_dim=3
+        self.point_encoder = (
+            PointNetEncoder(config.pointcloud_feature_dim, config.pointcloud_widths, in_dim=3)
+            if config.uses_pointcloud
+            else None
+        )
+        self.image_encoder = (
+            ImageEncoder(
+                tuple(config.input_features[config.image_keys[0]].shape),
+                config.image_feature_dim,
+                config.image_backbone,
+                config.image_backbone_weights,
+                crop_ratio=config.image_crop_ratio,
+            )
+            if config.uses_rgb
+            else None
+        )
+        visual_dim = config.pointcloud_feature_dim * config.uses_pointcloud + config.image_feature_dim * len(
+            config.image_keys
         )
         # DP3's state encoder. Fed raw into the U-Net's conditioning, the state would pass its Mish first,
         # which flattens inputs below -0.6 (normalised) to about -0.3: the lower part of every entry's range
@@ -66,7 +83,7 @@ class OpfaPolicy(PreTrainedPolicy):
         self.state_encoder = nn.Sequential(nn.Linear(width, hidden), nn.ReLU(), nn.Linear(hidden, out))
         self.unet = ConditionalUnet1d(
             action_dim=width,
-            cond_dim=config.n_obs_steps * (config.pointcloud_feature_dim + config.state_mlp_dims[-1]),
+            cond_dim=config.n_obs_steps * (visual_dim + config.state_mlp_dims[-1]),
             down_dims=config.down_dims,
             kernel=config.kernel_size,
             groups=config.n_groups,
@@ -94,18 +111,31 @@ class OpfaPolicy(PreTrainedPolicy):
 
     def reset(self) -> None:
         """Clears the observation history and the queued actions; call on env.reset()."""
-        keys = (OBS_STATE, OBS_POINTCLOUD, OBS_EMBODIMENT)
+        keys = (*self.observation_keys, OBS_EMBODIMENT)
         self._queues = {k: deque(maxlen=self.config.n_obs_steps) for k in keys}
         self._queues[ACTION] = deque(maxlen=self.config.n_action_steps)
 
+    @property
+    def observation_keys(self) -> tuple[str, ...]:
+        """The observation entries the policy reads, each with a history of `n_obs_steps` frames."""
+        clouds = (OBS_POINTCLOUD,) if self.config.uses_pointcloud else ()
+        return (OBS_STATE, *clouds, *self.config.image_keys)
+
     # --- conditioning ------------------------------------------------------------------------------
     def encode_observation(self, batch: dict[str, Tensor]) -> Tensor:
-        """state (B, n_obs, S), pointcloud (B, n_obs, N*3) -> global condition (B, n_obs * (F + E)), E the
-        state encoder's width."""
-        cloud = batch[OBS_POINTCLOUD]
-        b, n_obs = cloud.shape[:2]
-        features = self.point_encoder(cloud.reshape(b * n_obs, -1, 3)).view(b, n_obs, -1)
-        return torch.cat([features, self.state_encoder(batch[OBS_STATE])], dim=-1).flatten(1)
+        """state (B, n_obs, S), pointcloud (B, n_obs, N*3), images (B, n_obs, 3, H, W) -> global condition
+        (B, n_obs * (F + I * cameras + E)), F, I and E the point, image and state encoders' widths."""
+        state = batch[OBS_STATE]
+        b, n_obs = state.shape[:2]
+        features = []
+        if self.point_encoder is not None:
+            cloud = batch[OBS_POINTCLOUD]
+            features.append(self.point_encoder(cloud.reshape(b * n_obs, -1, 3)).view(b, n_obs, -1))
+        if self.image_encoder is not None:
+            images = torch.stack([batch[k] for k in self.config.image_keys], dim=2)  # (B, n_obs, cams, ...)
+            encoded = self.image_encoder(images.flatten(0, 2))
+            features.append(encoded.view(b, n_obs, -1))
+        return torch.cat([*features, self.state_encoder(state)], dim=-1).flatten(1)
 
     # --- training ----------------------------------------------------------------------------------
     def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
@@ -125,8 +155,8 @@ class OpfaPolicy(PreTrainedPolicy):
     def predict_action_chunk(self, batch: dict[str, Tensor], noise: Tensor | None = None) -> Tensor:
         """(B, n_action_steps, A) normalised policy-space actions from the current observation history
         (the queues, filled by `select_action`) or from a batch that already has the time axis."""
-        if any(len(self._queues[k]) for k in (OBS_STATE, OBS_POINTCLOUD)):
-            batch = {k: torch.stack(list(self._queues[k]), dim=1) for k in (OBS_STATE, OBS_POINTCLOUD)} | {
+        if len(self._queues[OBS_STATE]):
+            batch = {k: torch.stack(list(self._queues[k]), dim=1) for k in self.observation_keys} | {
                 OBS_EMBODIMENT: self._queues[OBS_EMBODIMENT][-1]
             }
         cond = self.encode_observation(batch)

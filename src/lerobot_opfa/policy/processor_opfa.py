@@ -1,6 +1,6 @@
 """`make_opfa_pre_post_processors`: the opfa policy's processor pipelines (found by LeRobot by name).
 
-Preprocessor: rename -> [depth frames to a cloud] -> batch -> batch point clouds -> device -> joints to
+Preprocessor: rename -> [depth frames to a cloud] -> batch -> [batch point clouds] -> device -> joints to
 policy space (z for `galr`) -> per-embodiment normalisation. Postprocessor: unnormalise -> policy space
 to the robot's action entries -> CPU. The GaLR's encoder weights are saved with the preprocessor and its
 decoder with the postprocessor, so a checkpoint (or a Hub repo) is self-contained.
@@ -284,7 +284,10 @@ def make_opfa_pre_post_processors(
         config.validate_features()  # the depth features become the cloud the depth step makes
     layout, galr = resolve_config(config, meta)
     check_trainable_frames(config, layout, Path(meta.root))
-    depth = [step for step in [depth_step(config, meta)] if step is not None]
+    depth, clouds = [], []
+    if config.uses_pointcloud:
+        depth = [step for step in [depth_step(config, meta)] if step is not None]
+        clouds = [PointCloudBatchStep(n_points=config.n_points)]
     cached = galr is not None and layout.latent_dim > 0  # policy_galr checked that this GaLR made them
     shared = dict(
         action_space=config.action_space,
@@ -309,7 +312,7 @@ def make_opfa_pre_post_processors(
             RenameObservationsProcessorStep(rename_map={}),
             *depth,
             AddBatchDimensionProcessorStep(),
-            PointCloudBatchStep(n_points=config.n_points),
+            *clouds,
             DeviceProcessorStep(device=config.device),
             encoder,
             OpfaNormalizeStep(

@@ -28,14 +28,13 @@ from functools import cached_property
 from pathlib import Path
 from typing import Any
 
-import mujoco
 import numpy as np
 import yaml
 from lerobot.robots.config import RobotConfig
 from lerobot.robots.robot import Robot
 
 from lerobot_opfa.envs.env import OpfaSimEnv, parse_cameras
-from lerobot_opfa.envs.observation import DepthPointCloud
+from lerobot_opfa.envs.observation import ColourCameras, DepthPointCloud
 from lerobot_opfa.pointclouds import DepthRig
 
 logger = logging.getLogger(__name__)
@@ -138,7 +137,7 @@ class OpfaSimRobot(Robot):
         self.depth = DepthPointCloud(
             self.env.model, 1, self.depth_names, self.config.width, self.config.height
         )
-        self.colour = mujoco.Renderer(self.env.model, height=self.config.height, width=self.config.width)
+        self.colour = ColourCameras(self.env.model, self.rgb_names, self.config.width, self.config.height)
         self._reset_scene()
         self.cameras_file.parent.mkdir(parents=True, exist_ok=True)
         self.cameras_file.write_text(yaml.safe_dump(self.depth_calibration().to_dict(), sort_keys=False))
@@ -187,9 +186,8 @@ class OpfaSimRobot(Robot):
         observation = {f"{n}{POSITION}": float(v) for n, v in zip(self.joint_names, state, strict=True)}
         for name, depth in zip(self.depth_names, self.depth.depth_images(self.env.data), strict=True):
             observation[f"{name}_depth"] = np.round(depth * 1000).astype(np.uint16)[..., None]
-        for name in self.rgb_names:
-            self.colour.update_scene(self.env.data, camera=f"depth_{name}")
-            observation[f"{name}_rgb"] = self.colour.render().copy()
+        for name, image in self.colour.images(self.env.data).items():
+            observation[f"{name}_rgb"] = image
         return observation
 
     def send_action(self, action: dict[str, Any]) -> dict[str, Any]:
