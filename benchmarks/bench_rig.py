@@ -78,7 +78,7 @@ class Stages:
         self.file.write_text(json.dumps(self.done, indent=2))
 
 
-def rig_args(task: str, hand: str, calibration: Path, episode_s: int, seed: int) -> list[str]:
+def rig_args(task: str, hand: str, calibration: Path, episode_s: float, seed: int) -> list[str]:
     return [
         "--robot.type=opfa_sim",
         f"--robot.hand={hand}",
@@ -100,13 +100,13 @@ def episodes_log(calibration: Path) -> list[dict]:
     return [json.loads(line) for line in path.read_text().splitlines()]
 
 
-def record(stages: Stages, task: str, hand: str, demos: int) -> Path:
+def record(stages: Stages, task: str, hand: str, demos: int, episode_s: float = RECORD_S) -> Path:
     """The expert's demos of `hand`, failed episodes dropped."""
     work, calibration = stages.work, stages.work / f"rig_{hand}"
     recorded, kept = work / "data" / f"{hand}_recorded", work / "data" / hand
     command = [
         str(BIN / "lerobot-record"),
-        *rig_args(task, hand, calibration, RECORD_S, 0),
+        *rig_args(task, hand, calibration, episode_s, 0),
         "--teleop.type=opfa_expert",
         f"--dataset.repo_id=local/{hand}_rig",
         f"--dataset.root={recorded}",
