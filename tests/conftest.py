@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import importlib.util
 import logging
+import os
 import shutil
 import sysconfig
 from pathlib import Path
@@ -12,6 +13,14 @@ from pathlib import Path
 import pytest
 
 from lerobot_opfa.hands.registry import builtin_hands, hand_models_dir
+
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    # `make test` runs a worker per core: one torch thread each, here and in the processes tests start
+    # (torch's spinning OpenMP threads collapse on oversubscribed cores).
+    import torch
+
+    os.environ["OMP_NUM_THREADS"] = "1"
+    torch.set_num_threads(1)
 
 DATA = Path(__file__).parent / "data"
 BUILTIN_HANDS = sorted(builtin_hands())

@@ -164,3 +164,32 @@ def test_demos_hold_the_success_for_a_few_frames():
     assert np.ptp(last[:, 2]) < 0.005, "the wrist holds the press height"
     assert env.task.success(env.scene, env.data), "still pressed after the hold"
     env.close()
+
+
+def test_the_env_shows_the_rigs_colour_pictures_of_the_same_scene(tmp_path):
+    """A policy trained on the rig's recorded `front_rgb` frames is evaluated on the env's `pixels`: both
+    render the same camera through one renderer, so the same scene state gives the same picture."""
+    from lerobot_opfa.rig.robot import OpfaSimRobot, OpfaSimRobotConfig
+
+    config = OpfaSimRobotConfig(
+        hand="umi", task="press_button", rgb_cameras="front", calibration_dir=tmp_path
+    )
+    robot = OpfaSimRobot(config)
+    robot.connect()
+    recorded = robot.get_observation()["front_rgb"]
+    env = OpfaSimEnv("press_button", "umi", obs_type="rgb")
+    env.reset(seed=0)
+    env.data.qpos[:], env.data.qvel[:] = robot.env.data.qpos, robot.env.data.qvel
+    import mujoco
+
+    mujoco.mj_forward(env.model, env.data)
+    pixels = env.observation()["pixels"]
+    robot.disconnect()
+    env.close()
+    assert list(pixels) == ["front_rgb"] and pixels["front_rgb"].dtype == np.uint8
+    assert pixels["front_rgb"].shape == recorded.shape == (96, 128, 3)
+    assert np.array_equal(pixels["front_rgb"], recorded)
+    assert recorded.std() > 10  # a picture, not a blank frame
+    cfg = OpfaEnvConfig(task="lift", hand="umi", obs_type="pointcloud_rgb", rgb_cameras="front,left")
+    assert cfg.features_map["pixels/left_rgb"] == "observation.images.left_rgb"
+    assert cfg.features["pixels/front_rgb"].shape == (96, 128, 3)

@@ -60,7 +60,7 @@ def robot_dataset(source: Path, root: Path, robot_type: str, entries: dict[str, 
     frames = read_columns(source, [OBS_STATE, ACTION, OBS_POINTCLOUD, "episode_index"])
     names = [*body, *entries]
     state_names = names + list(state_only)
-    image = {"dtype": "image", "shape": (8, 8, 3), "names": ["height", "width", "channels"]}
+    image = {"dtype": "image", "shape": (32, 32, 3), "names": ["height", "width", "channels"]}
     features = {
         OBS_STATE: {"dtype": "float32", "shape": (len(state_names),), "names": state_names},
         ACTION: {"dtype": "float32", "shape": (len(names),), "names": names},
@@ -88,11 +88,18 @@ def robot_dataset(source: Path, root: Path, robot_type: str, entries: dict[str, 
         for row in np.flatnonzero(frames["episode_index"] == episode):
             dataset.add_frame({
                 OBS_STATE: state[row], ACTION: action[row], OBS_POINTCLOUD: frames[OBS_POINTCLOUD][row],
-                "observation.images.front": np.full((8, 8, 3), row % 255, np.uint8), "task": "reach",
+                "observation.images.front": picture(row), "task": "reach",
             })  # fmt: skip
         dataset.save_episode()
     dataset.finalize()
     return root
+
+
+def picture(row: int) -> np.ndarray:
+    """A dark 32x32 frame with a bright square that moves with the frame."""
+    image = np.full((32, 32, 3), 20, np.uint8)
+    image[row % 24 : row % 24 + 8, 4:12] = 230
+    return image
 
 
 def write_map(path: Path, hand: str, entries: dict[str, str], units=None, drop=()) -> Path:
@@ -282,3 +289,29 @@ def test_lerobot_train_on_a_robots_dataset_through_a_map_then_the_checkpoint_dri
             pre({OBS_STATE: frame[OBS_STATE][:12], OBS_POINTCLOUD: frame[OBS_POINTCLOUD]})
     finally:
         (tmp_path / "moved.yaml").rename(rigs / "arm_inspire_map.yaml")
+
+
+@pytest.mark.parametrize("visual_inputs", ["rgb", "pointcloud_rgb"])
+def test_the_plugins_rgb_camera_alone_or_beside_the_cloud_trains_and_acts_through_the_map(
+    rigs, visual_inputs
+):
+    policy, pre, post, frames = make_policy(
+        rigs, "ghand", action_space="galr", joint_map=str(rigs / "ghand_map.yaml"),
+        visual_inputs=visual_inputs, image_feature_dim=8,
+    )  # fmt: skip
+    assert policy.config.image_keys == ["observation.images.front"]
+    assert (policy.point_encoder is not None) == (visual_inputs == "pointcloud_rgb")
+    before = policy.image_encoder.backbone[0].weight.detach().clone()
+    optimizer = torch.optim.Adam(policy.parameters(), lr=1e-2)
+    loss, _ = policy.forward(pre(batch_of(frames, [0, 5, 9])))
+    loss.backward()
+    optimizer.step()
+    assert torch.isfinite(loss) and not torch.equal(before, policy.image_encoder.backbone[0].weight)
+    policy.eval()
+    frame = frames[3]
+    observation = {
+        k: v[-1] for k, v in frame.items() if k in (OBS_STATE, OBS_POINTCLOUD, "observation.images.front")
+    }
+    with torch.no_grad():
+        action = post(policy.select_action(pre(observation)))
+    assert action.shape == (1, len(GHAND_FINGERS)) and torch.isfinite(action).all()

@@ -48,7 +48,7 @@ GALR = dict(latent_dim=8, encoder="pointnet", n_points=64, n_level1=32, n_superp
             decoder_hidden=32)  # fmt: skip
 POLICY = dict(device="cpu", down_dims=(16, 32), horizon=8, n_action_steps=4, pointcloud_widths=(16, 32),
               pointcloud_feature_dim=16, diffusion_step_embed_dim=16, n_groups=4)  # fmt: skip
-ENV = {**os.environ, "HF_HUB_OFFLINE": "1", "HF_DATASETS_OFFLINE": "1", "OMP_NUM_THREADS": "2"}
+ENV = {**os.environ, "HF_HUB_OFFLINE": "1", "HF_DATASETS_OFFLINE": "1", "OMP_NUM_THREADS": "1"}
 
 
 def save_galr(path: Path, hands: list[str]) -> Path:

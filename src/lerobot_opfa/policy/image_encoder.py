@@ -92,6 +92,11 @@ class ImageEncoder(nn.Module):
         self.backbone = small_backbone() if backbone == "small" else resnet18_backbone(weights)
         with torch.no_grad():
             channels, fh, fw = self.backbone(torch.zeros(1, 3, *self.crop)).shape[1:]
+        if fh * fw < 4:
+            raise ValueError(
+                f"images of {height}x{width} leave the {backbone} backbone a {fh}x{fw} feature map, where "
+                "keypoints cannot move: give the cameras at least 32x32 pixels"
+            )
         self.keypoints = SpatialSoftmax(channels, fh, fw, keypoints)
         self.projection = nn.Sequential(nn.Linear(2 * keypoints, out_dim), nn.ReLU())
         self.register_buffer("mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), persistent=False)
