@@ -93,15 +93,35 @@ def test_items_equal_lerobot_dataset(name, episodes, request):
     _assert_same_items(LeRobotDataset(f"local/{name}", root=root, episodes=episodes), plain)
 
 
-def test_image_datasets_are_refused(tmp_path):
-    features = {"observation.image": {"dtype": "image", "shape": (4, 4, 3), "names": ["h", "w", "c"]}}
+def test_image_features_are_served_as_lerobot_serves_them_and_text_features_refused(tmp_path):
+    features = {
+        "observation.image": {"dtype": "image", "shape": (4, 6, 3), "names": ["h", "w", "c"]},
+        "action": {"dtype": "float32", "shape": (2,), "names": None},
+    }
     dataset = LeRobotDataset.create("local/img", 10, features, root=tmp_path / "img", use_videos=False)
-    for _ in range(2):
-        dataset.add_frame({"observation.image": np.zeros((4, 4, 3), np.uint8), "task": "t"})
+    rng = np.random.default_rng(0)
+    for i in range(3):
+        picture = rng.integers(0, 256, (4, 6, 3), dtype=np.uint8)
+        dataset.add_frame({"observation.image": picture, "action": np.full(2, i, np.float32), "task": "t"})
     dataset.save_episode()
     dataset.finalize()
-    with pytest.raises(ValueError, match="numeric datasets.*observation.image.*lerobot-train"):
-        InMemoryDataset(LeRobotDataset("local/img", root=tmp_path / "img"))
+    deltas = {"observation.image": [-0.1, 0.0]}
+    source = LeRobotDataset("local/img", root=tmp_path / "img", delta_timestamps=deltas)
+    held = InMemoryDataset(source)
+    for index in range(3):
+        expected, served = source[index], held[index]
+        assert served["observation.image"].dtype == torch.float32
+        assert torch.equal(served["observation.image"], expected["observation.image"])
+        assert torch.equal(served["observation.image_is_pad"], expected["observation.image_is_pad"])
+    text = {"observation.note": {"dtype": "string", "shape": (1,), "names": None}}
+    dataset = LeRobotDataset.create("local/txt", 10, text, root=tmp_path / "txt", use_videos=False)
+    dataset.add_frame({"observation.note": "a", "task": "t"})
+    dataset.save_episode()
+    dataset.finalize()
+    with pytest.raises(
+        ValueError, match="numeric, image and video features.*observation.note.*lerobot-train"
+    ):
+        InMemoryDataset(LeRobotDataset("local/txt", root=tmp_path / "txt"))
 
 
 def _run(exe: str, *args: str) -> subprocess.CompletedProcess:

@@ -19,7 +19,7 @@ from lerobot.datasets.language import LANGUAGE_COLUMNS
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from tqdm import tqdm
 
-_NON_NUMERIC = ("image", "string")
+_NON_NUMERIC = ("string",)
 MAX_VIDEO_BYTES = 8 * 2**30
 """Decoded frames held at most; a larger dataset trains with lerobot-train, which decodes per sample."""
 
@@ -33,11 +33,16 @@ class InMemoryDataset(torch.utils.data.Dataset):
     def __init__(self, source: LeRobotDataset):
         features = source.meta.features
         unsupported = sorted(
-            key for key, ft in features.items() if ft["dtype"] in _NON_NUMERIC or key in LANGUAGE_COLUMNS
+            key
+            for key, ft in features.items()
+            if ft["dtype"] in _NON_NUMERIC
+            or key in LANGUAGE_COLUMNS
+            or (ft["dtype"] == "image" and key in source.meta.depth_keys)
         )
         if unsupported:
             raise ValueError(
-                f"the in-memory fast path is for numeric and video features; {source.repo_id} has others "
+                f"the in-memory fast path is for numeric, image and video features; {source.repo_id} has "
+                f"others "
                 f"({', '.join(unsupported)}): train it with lerobot-train"
             )
         if source.reader._image_transforms is not None:
@@ -49,8 +54,9 @@ class InMemoryDataset(torch.utils.data.Dataset):
         self.meta = source.meta
         self.episodes = source.episodes
         self.absolute_to_relative_idx = source.absolute_to_relative_idx
-        self._columns = _read_columns(source.hf_dataset, source[0] if len(source) else {})
-        self._colour = {k for k in source.meta.video_keys if k not in source.meta.depth_keys}
+        images = [k for k, ft in features.items() if ft["dtype"] == "image"]
+        self._columns = _read_columns(source.hf_dataset, source[0] if len(source) else {}, images)
+        self._colour = {k for k in source.meta.video_keys if k not in source.meta.depth_keys} | set(images)
         self._columns |= _read_videos(source, self._columns, self._colour)
         self._tasks = list(source.meta.tasks.index)
         self._windows = self._build_windows(source.reader.delta_indices or {})
@@ -140,12 +146,16 @@ class InMemoryDataset(torch.utils.data.Dataset):
         ]
 
 
-def _read_columns(hf_dataset, reference: dict) -> dict[str, np.ndarray]:
+def _read_columns(hf_dataset, reference: dict, images: list[str]) -> dict[str, np.ndarray]:
     """Every column of `hf_dataset` as one array, in the dtype and per-frame shape LeRobot's own
-    conversion (`hf_transform_to_torch`, compared on `reference`, the first item) gives."""
+    conversion (`hf_transform_to_torch`, compared on `reference`, the first item) gives; `images` (8-bit
+    pictures stored in the table) as uint8 (C, H, W), which that conversion gives divided by 255."""
     table = hf_dataset.with_format("numpy")
     columns = {}
-    for key in hf_dataset.column_names:
+    for key in images:
+        pictures = torch.stack(list(hf_dataset[key]))
+        columns[key] = torch.round(pictures * 255).to(torch.uint8).numpy()
+    for key in [k for k in hf_dataset.column_names if k not in images]:
         values = table[key][:]
         if values.dtype == object:
             raise ValueError(f"the in-memory fast path needs fixed-shape numeric columns; '{key}' is not")
