@@ -79,7 +79,7 @@ class OpfaConfig(PreTrainedConfig):
     cloud `cameras` makes from depth), `rgb` (the colour cameras, `observation.images.*` of 3 channels,
     through `image_encoder`) or `pointcloud_rgb` (both). The action space does not change."""
     image_backbone: str = "small"
-    """`small` (four strided convolutions, 6.7x the training samples/s of a ResNet-18 on a CPU) or
+    """`small` (four convolutions down to an eighth of the image; trains in minutes on a CPU) or
     `resnet18` (LeRobot's diffusion policy's, GroupNorm from scratch): see `image_encoder`."""
     image_backbone_weights: str | None = None
     """torchvision weights of the ResNet-18 (e.g. ResNet18_Weights.IMAGENET1K_V1) where installed."""

@@ -3,8 +3,9 @@ encoder shared by every camera (as LeRobot's diffusion policy: Chi et al., RSS 2
 
 Backbones: `resnet18`, torchvision's ResNet-18 (what LeRobot's diffusion policy uses): from scratch with
 GroupNorm in place of BatchNorm, or with torchvision's weights where they are installed (its BatchNorm kept,
-as the weights were trained with it); and `small`, four strided 3x3 convolutions with GroupNorm: about 20x
-fewer operations per image, what a CPU trains in minutes (benchmarks/bench_datasets.py measures both).
+as the weights were trained with it); and `small`, four 3x3 convolutions with GroupNorm down to an eighth of
+the image: a fraction of the ResNet's operations, what a CPU trains in minutes, and a finer map for the
+keypoints than the ResNet's thirty-second (docs/results.md, "Datasets as a rig records them").
 """
 
 from __future__ import annotations
@@ -36,12 +37,13 @@ def _group_norm(channels: int) -> nn.GroupNorm:
     return nn.GroupNorm(max(1, channels // 16), channels)
 
 
-def small_backbone(widths: tuple[int, ...] = (32, 64, 128, 128)) -> nn.Sequential:
-    """Strided 3x3 convolutions, each halving the image, with GroupNorm and ReLU."""
+def small_backbone(widths: tuple[int, ...] = (32, 64, 128, 128), strides: tuple[int, ...] = (2, 2, 2, 1)):
+    """3x3 convolutions with GroupNorm and ReLU, down to an eighth of the image: a feature map fine enough
+    for keypoints to place a small object to a few pixels."""
     layers: list[nn.Module] = []
     channels = 3
-    for width in widths:
-        layers += [nn.Conv2d(channels, width, 3, stride=2, padding=1), _group_norm(width), nn.ReLU()]
+    for width, stride in zip(widths, strides, strict=True):
+        layers += [nn.Conv2d(channels, width, 3, stride=stride, padding=1), _group_norm(width), nn.ReLU()]
         channels = width
     return nn.Sequential(*layers)
 
