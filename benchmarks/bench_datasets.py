@@ -146,17 +146,24 @@ def main() -> None:
     parser.add_argument("--epochs", type=int, default=30)
     parser.add_argument("--speed-steps", type=int, default=15)
     parser.add_argument("--work", type=Path, default=Path("outputs/datasets"))
+    parser.add_argument(
+        "--only-done", action="store_true", help="report the runs already evaluated, run nothing"
+    )
     args = parser.parse_args()
     runs = []
     for task in args.tasks.split(","):
         stages = Stages(args.work.resolve() / task)
         for hand in args.hands.split(","):
+            if args.only_done and f"record_{hand}" not in stages.done:
+                continue
             recorded = record(stages, task, hand, args.demos, EPISODE_S[task])
             calibration = stages.work / f"rig_{hand}" / "opfa_sim_cameras.yaml"
             kept = json.loads((recorded / "meta" / "info.json").read_text())["total_episodes"]
             base = {"hand": hand, "task": task, "demos": kept, "region": REGION, "action_space": "raw"}
             for observation in args.observations.split(","):
                 name = f"{hand}_{observation}"
+                if args.only_done and f"eval_{name}" not in stages.done:
+                    continue
                 if observation == "rgb":
                     run = train_and_eval(stages, name, recorded, ["--policy.visual_inputs=rgb"], args.epochs,
                                          ["--env.obs_type=rgb"], task, hand, args.episodes)  # fmt: skip
