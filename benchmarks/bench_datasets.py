@@ -30,10 +30,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
 import matplotlib.pyplot as plt  # noqa: E402
-from bench_rig import BIN, EVAL_SEED, REGION, RESULTS, Stages, record  # noqa: E402
+from bench_rig import BIN, EVAL_SEED, REGION, RESULTS, Stages, record, success_bars  # noqa: E402
 from bench_training import train as timed_training  # noqa: E402
-
-from lerobot_opfa.experiments.report import wilson_interval  # noqa: E402
 
 EPISODE_S = {"press_button": 4.5, "lift": 6.0}
 """Recorded episode length: the task's steps (80 and 100) at 20 Hz, with room for the expert to finish."""
@@ -100,28 +98,11 @@ def plot(runs: list[dict], path: Path) -> None:
     fig, ax = plt.subplots(figsize=(7, 3.6))
     pairs = list(dict.fromkeys((r["task"], r["hand"]) for r in runs))
     width = 0.38
-    for i, observation in enumerate(("depth", "rgb")):
-        xs, rates, errors = [], [], [[], []]
-        for j, pair in enumerate(pairs):
-            run = next(
-                (r for r in runs if (r["task"], r["hand"]) == pair and r["observation"] == observation), None
-            )
-            if run is None:
-                continue
-            k, n = run["successes"], run["episodes"]
-            low, high = wilson_interval(k, n)
-            xs.append(j + (i - 0.5) * width)
-            rates.append(k / n)
-            errors[0].append(k / n - low)
-            errors[1].append(high - k / n)
-        ax.bar(
-            xs,
-            rates,
-            width,
-            yerr=errors,
-            capsize=4,
-            label=f"{observation} (target {0.8 if i == 0 else 0.6:.0%})",
-        )
+    for i, (observation, target) in enumerate((("depth", 0.8), ("rgb", 0.6))):
+        measured = {(r["task"], r["hand"]): r for r in runs if r["observation"] == observation}
+        xs = [j + (i - 0.5) * width for j, pair in enumerate(pairs) if pair in measured]
+        counts = [(measured[p]["successes"], measured[p]["episodes"]) for p in pairs if p in measured]
+        success_bars(ax, xs, counts, width, f"{observation} (target {target:.0%})")
     ax.axhline(0.8, color="C0", linestyle="--", linewidth=1)
     ax.axhline(0.6, color="C1", linestyle="--", linewidth=1)
     ax.set_xticks(range(len(pairs)), [f"{hand}\n{task}" for task, hand in pairs])

@@ -174,19 +174,23 @@ def evaluate(stages: Stages, task: str, hand: str, model: Path, episodes: int, n
     }
 
 
+def success_bars(ax, xs: list[float], counts: list[tuple[int, int]], width: float, label: str) -> None:
+    """Bars of success rates (successes, episodes) with their 95 % Wilson intervals."""
+    rates = [k / n for k, n in counts]
+    bounds = [wilson_interval(k, n) for k, n in counts]
+    errors = [
+        [r - low for r, (low, _) in zip(rates, bounds, strict=True)],
+        [high - r for r, (_, high) in zip(rates, bounds, strict=True)],
+    ]
+    ax.bar(xs, rates, width, yerr=errors, capsize=4, label=label)
+
+
 def plot(hands: list[dict], task: str, path: Path) -> None:
     fig, ax = plt.subplots(figsize=(6, 3.5))
     width = 0.38
     for i, (label, key) in enumerate([("lerobot-rollout on the rig", "rollout"), ("lerobot-eval", "eval")]):
-        rates, errors = [], [[], []]
-        for h in hands:
-            k, n = h[f"{key}_successes"], h[f"{key}_episodes"]
-            low, high = wilson_interval(k, n)
-            rates.append(k / n)
-            errors[0].append(k / n - low)
-            errors[1].append(high - k / n)
-        xs = [j + (i - 0.5) * width for j in range(len(hands))]
-        ax.bar(xs, rates, width, yerr=errors, capsize=4, label=label)
+        counts = [(h[f"{key}_successes"], h[f"{key}_episodes"]) for h in hands]
+        success_bars(ax, [j + (i - 0.5) * width for j in range(len(hands))], counts, width, label)
     ax.axhline(0.8, color="grey", linestyle="--", linewidth=1)
     ax.set_xticks(range(len(hands)), [h["hand"] for h in hands])
     ax.set_ylim(0, 1.25)

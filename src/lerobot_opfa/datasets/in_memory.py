@@ -42,8 +42,7 @@ class InMemoryDataset(torch.utils.data.Dataset):
         if unsupported:
             raise ValueError(
                 f"the in-memory fast path is for numeric, image and video features; {source.repo_id} has "
-                f"others "
-                f"({', '.join(unsupported)}): train it with lerobot-train"
+                f"others ({', '.join(unsupported)}): train it with lerobot-train"
             )
         if source.reader._image_transforms is not None:
             raise ValueError(

@@ -13,7 +13,6 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
-IMAGE_BACKBONES = ("small", "resnet18")
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
 
@@ -73,6 +72,11 @@ def resnet18_backbone(weights: str | None) -> nn.Sequential:
     return nn.Sequential(*list(net.children())[:-2])
 
 
+BACKBONES = {"small": lambda weights: small_backbone(), "resnet18": resnet18_backbone}
+"""Backbone name -> builder from torchvision weights (only the ResNet takes any)."""
+IMAGE_BACKBONES = tuple(BACKBONES)
+
+
 class ImageEncoder(nn.Module):
     """Images (B, 3, H, W) in [0, 1] -> features (B, out_dim). Training takes a random crop of
     `crop_ratio` of each side (the same augmentation as LeRobot's diffusion policy), evaluation the centre."""
@@ -87,11 +91,9 @@ class ImageEncoder(nn.Module):
         crop_ratio: float = 0.9,
     ):
         super().__init__()
-        if backbone not in IMAGE_BACKBONES:
-            raise ValueError(f"`image_backbone` must be one of {list(IMAGE_BACKBONES)}, got '{backbone}'")
         _, height, width = image_shape
         self.crop = (max(8, round(height * crop_ratio)), max(8, round(width * crop_ratio)))
-        self.backbone = small_backbone() if backbone == "small" else resnet18_backbone(weights)
+        self.backbone = BACKBONES[backbone](weights)  # the config checked the name
         with torch.no_grad():
             channels, fh, fw = self.backbone(torch.zeros(1, 3, *self.crop)).shape[1:]
         if fh * fw < 4:

@@ -57,6 +57,10 @@ class OpfaPolicy(PreTrainedPolicy):
             raise ValueError("an opfa policy is built from a dataset (dataset_meta) or a trained checkpoint")
         self.config = config
         width = config.policy_width
+        self.image_keys = tuple(config.image_keys)
+        clouds = (OBS_POINTCLOUD,) if config.uses_pointcloud else ()
+        self.observation_keys = (OBS_STATE, *clouds, *self.image_keys)
+        """The observation entries the policy reads, each with a history of `n_obs_steps` frames."""
         self.point_encoder = (
             PointNetEncoder(config.pointcloud_feature_dim, config.pointcloud_widths, in_dim=3)
             if config.uses_pointcloud
@@ -64,7 +68,7 @@ class OpfaPolicy(PreTrainedPolicy):
         )
         self.image_encoder = (
             ImageEncoder(
-                tuple(config.input_features[config.image_keys[0]].shape),
+                tuple(config.input_features[self.image_keys[0]].shape),
                 config.image_feature_dim,
                 config.image_backbone,
                 config.image_backbone_weights,
@@ -73,8 +77,8 @@ class OpfaPolicy(PreTrainedPolicy):
             if config.uses_rgb
             else None
         )
-        visual_dim = config.pointcloud_feature_dim * config.uses_pointcloud + config.image_feature_dim * len(
-            config.image_keys
+        visual_dim = (
+            len(clouds) * config.pointcloud_feature_dim + len(self.image_keys) * config.image_feature_dim
         )
         # DP3's state encoder. Fed raw into the U-Net's conditioning, the state would pass its Mish first,
         # which flattens inputs below -0.6 (normalised) to about -0.3: the lower part of every entry's range
@@ -115,12 +119,6 @@ class OpfaPolicy(PreTrainedPolicy):
         self._queues = {k: deque(maxlen=self.config.n_obs_steps) for k in keys}
         self._queues[ACTION] = deque(maxlen=self.config.n_action_steps)
 
-    @property
-    def observation_keys(self) -> tuple[str, ...]:
-        """The observation entries the policy reads, each with a history of `n_obs_steps` frames."""
-        clouds = (OBS_POINTCLOUD,) if self.config.uses_pointcloud else ()
-        return (OBS_STATE, *clouds, *self.config.image_keys)
-
     # --- conditioning ------------------------------------------------------------------------------
     def encode_observation(self, batch: dict[str, Tensor]) -> Tensor:
         """state (B, n_obs, S), pointcloud (B, n_obs, N*3), images (B, n_obs, 3, H, W) -> global condition
@@ -132,7 +130,7 @@ class OpfaPolicy(PreTrainedPolicy):
             cloud = batch[OBS_POINTCLOUD]
             features.append(self.point_encoder(cloud.reshape(b * n_obs, -1, 3)).view(b, n_obs, -1))
         if self.image_encoder is not None:
-            images = torch.stack([batch[k] for k in self.config.image_keys], dim=2)  # (B, n_obs, cams, ...)
+            images = torch.stack([batch[k] for k in self.image_keys], dim=2)  # (B, n_obs, cams, ...)
             encoded = self.image_encoder(images.flatten(0, 2))
             features.append(encoded.view(b, n_obs, -1))
         return torch.cat([*features, self.state_encoder(state)], dim=-1).flatten(1)
