@@ -33,12 +33,15 @@ import matplotlib.pyplot as plt  # noqa: E402
 from bench_rig import BIN, EVAL_SEED, REGION, RESULTS, Stages, record, success_bars  # noqa: E402
 from bench_training import train as timed_training  # noqa: E402
 
+from lerobot_opfa.experiments.jobs import source_commit  # noqa: E402
+
 EPISODE_S = {"press_button": 4.5, "lift": 6.0}
 """Recorded episode length: the task's steps (80 and 100) at 20 Hz, with room for the expert to finish."""
 N_POINTS = 256
 POLICY = ["--policy.type=opfa", "--policy.action_space=raw", "--policy.pointcloud_widths=[32,64,128]",
           "--policy.optimizer_lr=3e-4", "--policy.device=cpu", "--policy.push_to_hub=false",
           "--batch_size=32", "--wandb.enable=false", "--seed=0"]  # fmt: skip
+FOLLOWING_EPISODES, FOLLOWING_SEED = 20, 5000
 TRAIN_ENV = {**os.environ, "OMP_NUM_THREADS": "1"}
 """One torch thread: other jobs share the 2 cores during the run, where two threads collapse."""
 
@@ -71,7 +74,25 @@ def train_and_eval(stages: Stages, name: str, data: Path, flags: list[str], epoc
         "train_steps": steps,
         "frames": frames,
         "train_minutes": round(stages.done[f"train_{name}"]["wall_s"] / 60, 2),
+        **following(stages, name, model, task, hand, eval_env),
     }
+
+
+def following(stages: Stages, name: str, model: Path, task: str, hand: str, eval_env: list[str]) -> dict:
+    """`failures.object_following` over FOLLOWING_EPISODES fresh episodes (kept in stages.json): whether
+    the policy's wrist goes where the object is, which press_button's 6 cm cap lets a blind policy pass."""
+    from lerobot_opfa.envs.config import OpfaEnvConfig
+    from lerobot_opfa.experiments.failures import object_following
+
+    key = f"following_{name}"
+    if key not in stages.done:
+        flags = (flag.removeprefix("--env.").split("=") for flag in eval_env)
+        values = {k: int(v) if v.isdigit() else v for k, v in flags}
+        config = OpfaEnvConfig(task=task, hand=hand, regions=REGION, **values)
+        following = object_following(model, config, FOLLOWING_EPISODES, FOLLOWING_SEED)
+        stages.done[key] = {**following, "commit": source_commit()}
+        stages.file.write_text(json.dumps(stages.done, indent=2))
+    return {k: v for k, v in stages.done[key].items() if k != "commit"}
 
 
 def speeds(stages: Stages, recorded: Path, clouds: Path, calibration: Path, steps: int) -> dict:
@@ -103,12 +124,18 @@ def plot(runs: list[dict], path: Path) -> None:
         xs = [j + (i - 0.5) * width for j, pair in enumerate(pairs) if pair in measured]
         counts = [(measured[p]["successes"], measured[p]["episodes"]) for p in pairs if p in measured]
         success_bars(ax, xs, counts, width, f"{observation} (target {target:.0%})")
+        for x, pair in zip(xs, (p for p in pairs if p in measured), strict=True):
+            if "follows_object" in measured[pair]:
+                ax.text(x, 1.05, f"{measured[pair]['follows_object']:.2f}", ha="center", fontsize=7)
     ax.axhline(0.8, color="C0", linestyle="--", linewidth=1)
     ax.axhline(0.6, color="C1", linestyle="--", linewidth=1)
     ax.set_xticks(range(len(pairs)), [f"{hand}\n{task}" for task, hand in pairs])
     ax.set_ylim(0, 1.25)
     ax.set_ylabel(f"success in lerobot-eval ({REGION})")
-    ax.set_title("single-hand policies from lerobot-record datasets: depth vs RGB", fontsize=10)
+    ax.set_title(
+        "single-hand policies from lerobot-record datasets: depth vs RGB\n(above the bars: how far the wrist "
+        "follows the object, 1 = wherever it is, 0 = blind)", fontsize=9,
+    )  # fmt: skip
     ax.legend(loc="upper center", ncol=2, fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
@@ -128,7 +155,9 @@ def main() -> None:
     parser.add_argument("--speed-steps", type=int, default=15)
     parser.add_argument("--work", type=Path, default=Path("outputs/datasets"))
     parser.add_argument(
-        "--only-done", action="store_true", help="report the runs already evaluated, run nothing"
+        "--only-done",
+        action="store_true",
+        help="report the runs already evaluated (measuring only their object following where missing)",
     )
     args = parser.parse_args()
     runs = []

@@ -11,9 +11,13 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+from lerobot_opfa.envs.config import OpfaEnvConfig
+from lerobot_opfa.experiments.failures import object_following
 
 ENV = {**os.environ, "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1", "MUJOCO_GL": "egl"}
 
@@ -97,6 +101,11 @@ def test_an_rgb_policy_trains_on_the_rigs_colour_camera_and_acts_in_lerobot_eval
     assert done.returncode == 0, done.stderr[-3000:]
     info = json.loads((tmp_path / "eval" / "eval_info.json").read_text())
     assert info["overall"]["n_episodes"] == 1
+
+    # The same loop read between steps: where the wrist ends against where the button was placed.
+    config = OpfaEnvConfig(task="press_button", hand="umi", obs_type="rgb", episode_length=6)
+    following = object_following(checkpoint, config, episodes=3, seed=0)
+    assert following["following_episodes"] == 3 and np.isfinite(following["follows_object"])
 
 
 def test_a_checkpoint_trained_on_the_rigs_depth_deploys_with_lerobot_rollout(recorded, tmp_path):

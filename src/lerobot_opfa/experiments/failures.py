@@ -3,15 +3,64 @@
 
 A failed episode either never touches the task's object (the wrist went somewhere else) or touches it and
 still fails (the hand did not press, grasp or hold). That separates the two halves of the action: the
-wrist pose and the hand's joints (or its latent)."""
+wrist pose and the hand's joints (or its latent). Whether the wrist goes where the object is at all
+(`object_following`) tells a policy that reads the object from its camera from one that replays the
+demonstrations' average path."""
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+if TYPE_CHECKING:
+    from lerobot_opfa.envs.config import OpfaEnvConfig
+
 OUTCOMES = ("success", "never_touched", "touched_failed")
+
+
+def rollouts(model: Path, config: OpfaEnvConfig, episodes: int, seed: int) -> Iterator[tuple]:
+    """(env at the episode's end, success, touched) for each of `episodes` seeded episodes of the policy in
+    `model` (a `pretrained_model` folder) in the env `config` describes."""
+    import gymnasium as gym
+    import torch
+    from lerobot.envs.utils import preprocess_observation
+    from lerobot.policies.factory import make_pre_post_processors
+
+    import lerobot_policy_opfa  # noqa: F401  (registers the opfa policy and env types)
+    from lerobot_opfa.policy.modeling_opfa import OpfaPolicy
+
+    policy = OpfaPolicy.from_pretrained(model).eval()
+    preprocessor, postprocessor = make_pre_post_processors(policy.config, pretrained_path=str(model))
+    env_preprocessor, _ = config.get_env_processors()
+    kwargs = dict(config.gym_kwargs)
+    max_steps = kwargs.pop("max_episode_steps")
+    env = gym.make(config.gym_id, disable_env_checker=True, **kwargs).unwrapped
+
+    def batched(value):  # `pixels` is a dict of cameras
+        return {k: v[None] for k, v in value.items()} if isinstance(value, dict) else np.asarray(value)[None]
+
+    try:
+        for episode in range(episodes):
+            observation, _ = env.reset(seed=seed + episode)
+            torch.manual_seed(seed + episode)  # the diffusion noise too: a rerun draws the same episodes
+            policy.reset()
+            preprocessor.reset()
+            touched = success = False
+            for _ in range(max_steps):
+                batch = preprocess_observation({k: batched(v) for k, v in observation.items()})
+                batch["task"] = [env.task_description]
+                with torch.inference_mode():
+                    action = policy.select_action(preprocessor(env_preprocessor(batch)))
+                observation, _, success, _, _ = env.step(postprocessor(action)[0].numpy())
+                touched = touched or env.task.touched(env.scene, env.data)
+                if success:
+                    break
+            yield env, success, touched
+    finally:
+        env.close()
 
 
 def episode_outcomes(
@@ -24,43 +73,28 @@ def episode_outcomes(
     seed: int,
     steps: int | None = None,
 ) -> list[str]:
-    """One of `OUTCOMES` per seeded episode of the policy in `model` (a `pretrained_model` folder), each
-    `steps` long (None: the task's episode length)."""
-    import gymnasium as gym
-    import torch
-    from lerobot.envs.utils import preprocess_observation
-    from lerobot.policies.factory import make_pre_post_processors
-
-    import lerobot_policy_opfa  # noqa: F401  (registers the opfa policy and env types)
+    """One of `OUTCOMES` per seeded episode of a point-cloud policy, each `steps` long (None: the task's
+    episode length)."""
     from lerobot_opfa.envs.config import OpfaEnvConfig
-    from lerobot_opfa.policy.modeling_opfa import OpfaPolicy
 
-    policy = OpfaPolicy.from_pretrained(model).eval()
-    preprocessor, postprocessor = make_pre_post_processors(policy.config, pretrained_path=str(model))
     config = OpfaEnvConfig(
         task=task, hand=hand, regions=",".join(regions), obs_type="pointcloud",
         pointcloud_source="geometry", n_points=n_points, episode_length=steps,
     )  # fmt: skip
-    env_preprocessor, _ = config.get_env_processors()
-    kwargs = dict(config.gym_kwargs)
-    max_steps = kwargs.pop("max_episode_steps")
-    env = gym.make(config.gym_id, disable_env_checker=True, **kwargs).unwrapped
-    outcomes = []
-    for episode in range(episodes):
-        observation, _ = env.reset(seed=seed + episode)
-        torch.manual_seed(seed + episode)  # the diffusion noise too: a rerun draws the same episodes
-        policy.reset()
-        preprocessor.reset()
-        touched = success = False
-        for _ in range(max_steps):
-            batch = preprocess_observation({k: np.asarray(v)[None] for k, v in observation.items()})
-            batch["task"] = [env.task_description]
-            with torch.inference_mode():
-                action = policy.select_action(preprocessor(env_preprocessor(batch)))
-            observation, _, success, _, _ = env.step(postprocessor(action)[0].numpy())
-            touched = touched or env.task.touched(env.scene, env.data)
-            if success:
-                break
-        outcomes.append("success" if success else "touched_failed" if touched else "never_touched")
-    env.close()
-    return outcomes
+    return [
+        "success" if success else "touched_failed" if touched else "never_touched"
+        for _, success, touched in rollouts(model, config, episodes, seed)
+    ]
+
+
+def object_following(model: Path, config: OpfaEnvConfig, episodes: int, seed: int) -> dict:
+    """How far the wrist follows the object: the least-squares slope of the wrist's (x, y) at each episode's
+    end on where reset placed the object, averaged over the two axes. About 1: the policy goes where the
+    object is; about 0: it goes to the same place whatever its cameras show."""
+    placed, reached = [], []
+    for env, _, _ in rollouts(model, config, episodes, seed):
+        placed.append(env.placement.xy.copy())
+        reached.append(env.data.qpos[env.scene.wrist_qpos][:2].copy())
+    placed, reached = np.array(placed), np.array(reached)
+    slopes = [np.polyfit(placed[:, axis], reached[:, axis], 1)[0] for axis in range(2)]
+    return {"follows_object": round(float(np.mean(slopes)), 2), "following_episodes": episodes}
