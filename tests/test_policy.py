@@ -24,6 +24,7 @@ from lerobot.processor import TransitionKey, create_transition
 from lerobot.processor.converters import batch_to_transition, transition_to_batch
 from lerobot.utils.constants import OBS_ENV_STATE
 from lerobot.utils.feature_utils import dataset_to_policy_features
+from safetensors.torch import load_file, save_file
 
 from lerobot_opfa import cli
 from lerobot_opfa.datasets import merge as merge_module
@@ -559,6 +560,11 @@ def test_save_load_identical_actions_and_processors_by_name(data, tmp_path):
     del config["embodiment_joints"]  # a checkpoint saved before the field existed
     (tmp_path / "config.json").write_text(json.dumps(config))
     assert OpfaPolicy.from_pretrained(tmp_path).config.embodiment_joints == loaded.config.embodiment_joints
+    weights = load_file(tmp_path / "model.safetensors")
+    dropped = sorted(weights)[0]
+    save_file({k: v for k, v in weights.items() if k != dropped}, tmp_path / "model.safetensors")
+    with pytest.raises(ValueError, match=f"does not fit this opfa policy .*{dropped}"):
+        OpfaPolicy.from_pretrained(tmp_path)
 
 
 @pytest.mark.parametrize("space", ["galr", "per_embodiment", "raw"])

@@ -110,6 +110,23 @@ class OpfaPolicy(PreTrainedPolicy):
         self.register_buffer("loss_weights", loss_weights(config), persistent=False)
         self.reset()
 
+    @classmethod
+    def _load_as_safetensor(cls, model, model_file: str, map_location: str, strict: bool):
+        """LeRobot loads weights non-strictly by default, which leaves a layer the file lacks at its random
+        initialisation without a word (a warning at most): here a file that does not fit is an error."""
+        from lerobot.utils.device_utils import resolve_safetensors_device
+        from safetensors.torch import load_model
+
+        device = resolve_safetensors_device(map_location)
+        missing, unexpected = load_model(model, model_file, strict=False, device=device)
+        if missing or unexpected:
+            raise ValueError(
+                f"{model_file} does not fit this opfa policy (weights missing from the file: "
+                f"{sorted(missing)[:4]}, in the file but not the policy: {sorted(unexpected)[:4]}): it was "
+                "saved by another version of lerobot-opfa; load it with that version or train again"
+            )
+        return model
+
     def get_optim_params(self) -> dict:
         return self.parameters()
 
