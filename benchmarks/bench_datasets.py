@@ -11,6 +11,8 @@ dropped with `lerobot-edit-dataset`), in `mid_center`. Then:
   clouds), measured on the same data in the same run (`bench_training.train`: LeRobot's step times).
 - rgb: a policy trained on the colour video (`--policy.visual_inputs=rgb`, `lerobot-opfa train`, frames
   decoded once), evaluated with `lerobot-eval --env.obs_type=rgb`.
+Every run also reports `follows_object` (`failures.object_following`): whether its wrist goes where the
+object is, which success alone does not tell on press_button.
 
     MUJOCO_GL=egl .venv/bin/python benchmarks/bench_datasets.py [--work outputs/datasets] [--epochs 30]
 
