@@ -35,8 +35,6 @@ import matplotlib.pyplot as plt  # noqa: E402
 from bench_rig import BIN, EVAL_SEED, REGION, RESULTS, Stages, record, success_bars  # noqa: E402
 from bench_training import train as timed_training  # noqa: E402
 
-from lerobot_opfa.experiments.jobs import source_commit  # noqa: E402
-
 EPISODE_S = {"press_button": 4.5, "lift": 6.0}
 """Recorded episode length: the task's steps (80 and 100) at 20 Hz, with room for the expert to finish."""
 N_POINTS = 256
@@ -48,8 +46,10 @@ TRAIN_ENV = {**os.environ, "OMP_NUM_THREADS": "1"}
 """One torch thread: other jobs share the 2 cores during the run, where two threads collapse."""
 
 
-def train_and_eval(stages: Stages, name: str, data: Path, flags: list[str], epochs: int, eval_env: list[str],
+def train_and_eval(stages: Stages, name: str, data: Path, flags: list[str], epochs: int, eval_env: dict,
                    task: str, hand: str, episodes: int) -> dict:  # fmt: skip
+    """`eval_env`: the `opfa` env's settings beyond task, hand and region, for lerobot-eval and
+    `following` alike."""
     frames = json.loads((data / "meta" / "info.json").read_text())["total_frames"]
     steps = math.ceil(epochs * frames / 32)
     out, evaluation = stages.work / f"train_{name}", stages.work / f"eval_{name}"
@@ -63,7 +63,8 @@ def train_and_eval(stages: Stages, name: str, data: Path, flags: list[str], epoc
     model = out / "checkpoints" / "last" / "pretrained_model"
     lerobot_eval = [
         str(BIN / "lerobot-eval"), f"--policy.path={model}", "--policy.device=cpu", "--env.type=opfa",
-        f"--env.task={task}", f"--env.hand={hand}", f"--env.regions={REGION}", *eval_env,
+        f"--env.task={task}", f"--env.hand={hand}", f"--env.regions={REGION}",
+        *(f"--env.{key}={value}" for key, value in eval_env.items()),
         f"--eval.n_episodes={episodes}", "--eval.batch_size=1", f"--seed={EVAL_SEED}",
         f"--output_dir={evaluation}",
     ]  # fmt: skip
@@ -80,36 +81,31 @@ def train_and_eval(stages: Stages, name: str, data: Path, flags: list[str], epoc
     }
 
 
-def following(stages: Stages, name: str, model: Path, task: str, hand: str, eval_env: list[str]) -> dict:
+def following(stages: Stages, name: str, model: Path, task: str, hand: str, eval_env: dict) -> dict:
     """`failures.object_following` over FOLLOWING_EPISODES fresh episodes (kept in stages.json): whether
     the policy's wrist goes where the object is, which press_button's 6 cm cap lets a blind policy pass."""
     from lerobot_opfa.envs.config import OpfaEnvConfig
     from lerobot_opfa.experiments.failures import object_following
 
-    key = f"following_{name}"
-    if key not in stages.done:
-        flags = (flag.removeprefix("--env.").split("=") for flag in eval_env)
-        values = {k: int(v) if v.isdigit() else v for k, v in flags}
-        config = OpfaEnvConfig(task=task, hand=hand, regions=REGION, **values)
-        following = object_following(model, config, FOLLOWING_EPISODES, FOLLOWING_SEED)
-        stages.done[key] = {**following, "commit": source_commit()}
-        stages.file.write_text(json.dumps(stages.done, indent=2))
-    return {k: v for k, v in stages.done[key].items() if k != "commit"}
+    config = OpfaEnvConfig(task=task, hand=hand, regions=REGION, **eval_env)
+    return stages.measure(
+        f"following_{name}", lambda: object_following(model, config, FOLLOWING_EPISODES, FOLLOWING_SEED)
+    )
 
 
 def speeds(stages: Stages, recorded: Path, clouds: Path, calibration: Path, steps: int) -> dict:
     """Samples/s of the depth path and of the point-cloud path on the same demos (kept in stages.json)."""
-    key = f"speed_{recorded.name}"
-    if key not in stages.done:
+
+    def measure() -> dict:
         policy = [*POLICY, f"--policy.cloud_points={N_POINTS}"]
         with tempfile.TemporaryDirectory() as tmp:
             depth = timed_training(recorded, Path(tmp) / "depth", ("lerobot-train", 0, 1, False), steps, 3,
                                    [*policy, f"--policy.cameras={calibration}"])  # fmt: skip
             cloud = timed_training(clouds, Path(tmp) / "cloud", ("lerobot-opfa train", 0, 1, False), steps, 3,
                                    policy)  # fmt: skip
-        stages.done[key] = {"depth": depth, "pointcloud": cloud}
-        stages.file.write_text(json.dumps(stages.done, indent=2))
-    measured = stages.done[key]
+        return {"depth": depth, "pointcloud": cloud}
+
+    measured = stages.measure(f"speed_{recorded.name}", measure)
     return {
         "depth_samples_per_s": round(measured["depth"]["samples_per_s"], 1),
         "pointcloud_samples_per_s": round(measured["pointcloud"]["samples_per_s"], 1),
@@ -123,12 +119,12 @@ def plot(runs: list[dict], path: Path) -> None:
     width = 0.38
     for i, (observation, target) in enumerate((("depth", 0.8), ("rgb", 0.6))):
         measured = {(r["task"], r["hand"]): r for r in runs if r["observation"] == observation}
-        xs = [j + (i - 0.5) * width for j, pair in enumerate(pairs) if pair in measured]
-        counts = [(measured[p]["successes"], measured[p]["episodes"]) for p in pairs if p in measured]
-        success_bars(ax, xs, counts, width, f"{observation} (target {target:.0%})")
-        for x, pair in zip(xs, (p for p in pairs if p in measured), strict=True):
-            if "follows_object" in measured[pair]:
-                ax.text(x, 1.05, f"{measured[pair]['follows_object']:.2f}", ha="center", fontsize=7)
+        placed = {j + (i - 0.5) * width: measured[pair] for j, pair in enumerate(pairs) if pair in measured}
+        counts = [(run["successes"], run["episodes"]) for run in placed.values()]
+        success_bars(ax, list(placed), counts, width, f"{observation} (target {target:.0%})")
+        for x, run in placed.items():
+            if "follows_object" in run:
+                ax.text(x, 1.05, f"{run['follows_object']:.2f}", ha="center", fontsize=7)
     ax.axhline(0.8, color="C0", linestyle="--", linewidth=1)
     ax.axhline(0.6, color="C1", linestyle="--", linewidth=1)
     ax.set_xticks(range(len(pairs)), [f"{hand}\n{task}" for task, hand in pairs])
@@ -178,16 +174,15 @@ def main() -> None:
                     continue
                 if observation == "rgb":
                     run = train_and_eval(stages, name, recorded, ["--policy.visual_inputs=rgb"], args.epochs,
-                                         ["--env.obs_type=rgb"], task, hand, args.episodes)  # fmt: skip
+                                         {"obs_type": "rgb"}, task, hand, args.episodes)  # fmt: skip
                     run["image_backbone"] = "small"
                 else:
                     clouds = stages.work / "data" / f"{hand}_clouds"
                     stages.run(f"clouds_{hand}", [clouds], [
                         str(BIN / "lerobot-opfa"), "dataset", "clouds", "--input", str(recorded), "--output",
                         str(clouds), "--cameras", str(calibration), "--n-points", str(N_POINTS)])  # fmt: skip
-                    evaluation = [f"--env.n_points={N_POINTS}"]
-                    run = train_and_eval(stages, name, clouds, [], args.epochs, evaluation, task, hand,
-                                         args.episodes)  # fmt: skip
+                    run = train_and_eval(stages, name, clouds, [], args.epochs, {"n_points": N_POINTS}, task,
+                                         hand, args.episodes)  # fmt: skip
                     run["clouds_minutes"] = round(stages.done[f"clouds_{hand}"]["wall_s"] / 60, 2)
                     run |= speeds(stages, recorded, clouds, calibration, args.speed_steps)
                 runs.append({**base, "observation": observation, **run})

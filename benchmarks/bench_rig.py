@@ -26,6 +26,7 @@ import shutil
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -76,6 +77,13 @@ class Stages:
                 sys.exit(f"stage {name} failed (exit {done.returncode}); its log: {log}")
         self.done[name] = {"wall_s": round(time.perf_counter() - start, 1), "commit": source_commit()}
         self.file.write_text(json.dumps(self.done, indent=2))
+
+    def measure(self, name: str, compute: Callable[[], dict]) -> dict:
+        """An in-process measurement, made once: its result is kept with the package's commit."""
+        if name not in self.done:
+            self.done[name] = {**compute(), "commit": source_commit()}
+            self.file.write_text(json.dumps(self.done, indent=2))
+        return {k: v for k, v in self.done[name].items() if k != "commit"}
 
 
 def rig_args(task: str, hand: str, calibration: Path, episode_s: float, seed: int) -> list[str]:
