@@ -86,6 +86,11 @@ class OpfaConfig(PreTrainedConfig):
     image_feature_dim: int = 64
     image_crop_ratio: float = 0.9
     """Side of the random training crop (centre crop at inference), as a fraction of the image's."""
+    image_goal_steps: int = 0
+    """With colour cameras and > 0: each frame's image features also learn to predict the action this many
+    steps ahead (the episode's last where it ends sooner), a loss beside the denoising one. Denoising alone
+    barely reaches the encoder, and a policy trained on it is blind to where the object is (docs/results.md,
+    "Datasets as a rig records them"); where the hand will be is where the object is, in any dataset."""
 
     # DP3 point encoder
     pointcloud_widths: tuple[int, ...] = (64, 128, 256)
@@ -144,6 +149,8 @@ class OpfaConfig(PreTrainedConfig):
                 raise ValueError(f"`{name}` must be one of {list(valid)}, got '{value}'")
         if self.cloud_points < 1:
             raise ValueError(f"`cloud_points` must be positive, got {self.cloud_points}")
+        if self.image_goal_steps < 0:
+            raise ValueError(f"`image_goal_steps` must be >= 0, got {self.image_goal_steps}")
         if not 0.1 <= self.image_crop_ratio <= 1:
             raise ValueError(f"`image_crop_ratio` must be in [0.1, 1], got {self.image_crop_ratio}")
         factor = 2 ** (len(self.down_dims) - 1)
@@ -181,8 +188,14 @@ class OpfaConfig(PreTrainedConfig):
         return list(range(1 - self.n_obs_steps, 1))
 
     @property
+    def image_goal(self) -> bool:
+        return self.uses_rgb and self.image_goal_steps > 0
+
+    @property
     def action_delta_indices(self) -> list[int]:
-        return list(range(1 - self.n_obs_steps, 1 - self.n_obs_steps + self.horizon))
+        """The chunk's actions, then (with `image_goal_steps`) the image features' target."""
+        goal = [self.image_goal_steps] if self.image_goal else []
+        return list(range(1 - self.n_obs_steps, 1 - self.n_obs_steps + self.horizon)) + goal
 
     @property
     def reward_delta_indices(self) -> None:
