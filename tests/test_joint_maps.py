@@ -315,3 +315,27 @@ def test_the_plugins_rgb_camera_alone_or_beside_the_cloud_trains_and_acts_throug
     with torch.no_grad():
         action = post(policy.select_action(pre(observation)))
     assert action.shape == (1, len(GHAND_FINGERS)) and torch.isfinite(action).all()
+
+
+def test_image_goal_steps_train_the_image_features_on_the_action_that_far_ahead(rigs):
+    policy, pre, post, frames = make_policy(
+        rigs, "ghand", action_space="galr", joint_map=str(rigs / "ghand_map.yaml"), visual_inputs="rgb",
+        image_feature_dim=8, image_goal_steps=3,
+    )  # fmt: skip
+    horizon = policy.config.horizon
+    episode = frames.meta.episodes[0]
+    first, last = episode["dataset_from_index"], episode["dataset_to_index"] - 1
+    actions = frames.hf_dataset.with_format("torch")["action"]
+    raw = batch_of(frames, [first, last])
+    assert raw["action"].shape[1] == horizon + 1
+    assert torch.equal(raw["action"][0, -1], actions[first + 3]), "three steps ahead"
+    assert torch.equal(raw["action"][1, -1], actions[last]), "the episode's last where it ends sooner"
+    loss, info = policy.forward(pre(raw))
+    loss.backward()
+    assert loss.item() == pytest.approx(info["denoising_loss"] + info["image_goal_loss"], rel=1e-5)
+    assert policy.image_goal.weight.grad.abs().sum() > 0
+    assert policy.image_encoder.backbone[0].weight.grad.abs().sum() > 0
+    policy.eval()
+    observation = {k: v[-1] for k, v in frames[first].items() if k in (OBS_STATE, "observation.images.front")}
+    with torch.no_grad():
+        assert post(policy.select_action(pre(observation))).shape == (1, len(GHAND_FINGERS))
