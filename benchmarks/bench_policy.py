@@ -154,7 +154,7 @@ def opfa_breakdown_ms(policy, pre, post, obs: dict, repeats: int) -> dict[str, f
     with torch.inference_mode():
         for _ in range(repeats + 2):
             start = time.perf_counter()
-            cond = policy.encode_observation(batch)[0]
+            cond = policy.encode_observation(batch)
             mid = time.perf_counter()
             noise = torch.randn(1, policy.config.horizon, policy.unet.action_dim)
             actions = policy.sample(cond, None, noise)

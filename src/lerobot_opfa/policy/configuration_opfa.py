@@ -22,6 +22,8 @@ from lerobot_opfa.policy.image_encoder import IMAGE_BACKBONES
 
 WRIST_NORMALIZATIONS = ("per_embodiment", "shared")
 VISUAL_INPUTS = ("pointcloud", "rgb", "pointcloud_rgb")
+EPISODE_EDGE = 1_000_000
+"""Frames: a delta that far reaches past any episode, so the clamped window gives its first or last frame."""
 
 
 @PreTrainedConfig.register_subclass("opfa")
@@ -86,11 +88,11 @@ class OpfaConfig(PreTrainedConfig):
     image_feature_dim: int = 64
     image_crop_ratio: float = 0.9
     """Side of the random training crop (centre crop at inference), as a fraction of the image's."""
-    image_goal_steps: int = 0
-    """With colour cameras and > 0: each frame's image features also learn to predict the action this many
-    steps ahead (the episode's last where it ends sooner), a loss beside the denoising one. Denoising alone
-    barely reaches the encoder, and a policy trained on it is blind to where the object is (docs/results.md,
-    "Datasets as a rig records them"); where the hand will be is where the object is, in any dataset."""
+    image_goal: bool = False
+    """With colour cameras: the image features of each episode's first frame also learn to predict the
+    episode's last action, a loss beside the denoising one, so every sample asks the encoder where the
+    object is. Denoising alone does not: after the first frames the hand's own path tells where it goes,
+    and a policy trained on it is blind to the object (docs/results.md, "Datasets as a rig records them")."""
 
     # DP3 point encoder
     pointcloud_widths: tuple[int, ...] = (64, 128, 256)
@@ -149,8 +151,6 @@ class OpfaConfig(PreTrainedConfig):
                 raise ValueError(f"`{name}` must be one of {list(valid)}, got '{value}'")
         if self.cloud_points < 1:
             raise ValueError(f"`cloud_points` must be positive, got {self.cloud_points}")
-        if self.image_goal_steps < 0:
-            raise ValueError(f"`image_goal_steps` must be >= 0, got {self.image_goal_steps}")
         if not 0.1 <= self.image_crop_ratio <= 1:
             raise ValueError(f"`image_crop_ratio` must be in [0.1, 1], got {self.image_crop_ratio}")
         factor = 2 ** (len(self.down_dims) - 1)
@@ -185,16 +185,18 @@ class OpfaConfig(PreTrainedConfig):
 
     @property
     def observation_delta_indices(self) -> list[int]:
-        return list(range(1 - self.n_obs_steps, 1))
+        """The history, after (`image_goal`) the episode's first frame."""
+        first = [-EPISODE_EDGE] if self.learns_image_goal else []
+        return first + list(range(1 - self.n_obs_steps, 1))
 
     @property
-    def image_goal(self) -> bool:
-        return self.uses_rgb and self.image_goal_steps > 0
+    def learns_image_goal(self) -> bool:
+        return self.uses_rgb and self.image_goal
 
     @property
     def action_delta_indices(self) -> list[int]:
-        """The chunk's actions, then (with `image_goal_steps`) the image features' target."""
-        goal = [self.image_goal_steps] if self.image_goal else []
+        """The chunk's actions, then (`image_goal`) the episode's last, where the window is clamped."""
+        goal = [EPISODE_EDGE] if self.learns_image_goal else []
         return list(range(1 - self.n_obs_steps, 1 - self.n_obs_steps + self.horizon)) + goal
 
     @property

@@ -79,8 +79,8 @@ class OpfaPolicy(PreTrainedPolicy):
         )
         image_dim = len(self.image_keys) * config.image_feature_dim
         visual_dim = len(clouds) * config.pointcloud_feature_dim + image_dim
-        self.image_goal = nn.Linear(image_dim, width) if config.image_goal else None
-        """The latest frame's image features -> the action `image_goal_steps` ahead (training only)."""
+        self.image_goal = nn.Linear(image_dim, width) if config.learns_image_goal else None
+        """An episode's first frame's image features -> its last action (training only)."""
         # DP3's state encoder. Fed raw into the U-Net's conditioning, the state would pass its Mish first,
         # which flattens inputs below -0.6 (normalised) to about -0.3: the lower part of every entry's range
         # (the wrist's last centimetres above a button) would barely reach the network.
@@ -138,32 +138,35 @@ class OpfaPolicy(PreTrainedPolicy):
         self._queues[ACTION] = deque(maxlen=self.config.n_action_steps)
 
     # --- conditioning ------------------------------------------------------------------------------
-    def encode_observation(self, batch: dict[str, Tensor]) -> tuple[Tensor, Tensor | None]:
+    def encode_observation(self, batch: dict[str, Tensor]) -> Tensor:
         """state (B, n_obs, S), pointcloud (B, n_obs, N*3), images (B, n_obs, 3, H, W) -> global condition
-        (B, n_obs * (F + I * cameras + E)), F, I and E the point, image and state encoders' widths, and the
-        image features (B, n_obs, I * cameras) where there are cameras."""
+        (B, n_obs * (F + I * cameras + E)), F, I and E the point, image and state encoders' widths."""
         state = batch[OBS_STATE]
         b, n_obs = state.shape[:2]
-        features, images = [], None
+        features = []
         if self.point_encoder is not None:
             cloud = batch[OBS_POINTCLOUD]
             features.append(self.point_encoder(cloud.reshape(b * n_obs, -1, 3)).view(b, n_obs, -1))
         if self.image_encoder is not None:
-            stacked = torch.stack([batch[k] for k in self.image_keys], dim=2)  # (B, n_obs, cams, ...)
-            images = self.image_encoder(stacked.flatten(0, 2)).view(b, n_obs, -1)
-            features.append(images)
-        return torch.cat([*features, self.state_encoder(state)], dim=-1).flatten(1), images
+            features.append(self.encode_images(batch))
+        return torch.cat([*features, self.state_encoder(state)], dim=-1).flatten(1)
+
+    def encode_images(self, batch: dict[str, Tensor]) -> Tensor:
+        """Colour cameras (B, T, 3, H, W) each -> features (B, T, I * cameras)."""
+        images = torch.stack([batch[k] for k in self.image_keys], dim=2)  # (B, T, cams, ...)
+        return self.image_encoder(images.flatten(0, 2)).view(*images.shape[:2], -1)
 
     # --- training ----------------------------------------------------------------------------------
     def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
-        """Denoising loss of the action chunk (prediction target: the clean sample by default), plus the
-        image features' error on the action `image_goal_steps` ahead."""
-        cond, images = self.encode_observation(batch)
-        x0 = batch[ACTION]
-        info = {}
-        if self.image_goal is not None:
-            x0, goal = x0[:, :-1], x0[:, -1]
-            info["image_goal_loss"] = F.mse_loss(self.image_goal(images[:, -1]), goal)
+        """Denoising loss of the action chunk (prediction target: the clean sample by default), plus (with
+        `image_goal`) the error of the episode's last action predicted from its first picture."""
+        x0, info = batch[ACTION], {}
+        if self.image_goal is not None:  # the windows start with the episode's first frame, end with its last
+            first = self.encode_images({k: batch[k][:, :1] for k in self.image_keys})[:, 0]
+            info["image_goal_loss"] = F.mse_loss(self.image_goal(first), x0[:, -1])
+            batch = batch | {k: batch[k][:, 1:] for k in self.observation_keys}
+            x0 = x0[:, :-1]
+        cond = self.encode_observation(batch)
         noise = torch.randn_like(x0)
         t = torch.randint(0, self.config.num_train_timesteps, (len(x0),), device=x0.device)
         head = batch_embodiments(batch[OBS_EMBODIMENT])
@@ -185,7 +188,7 @@ class OpfaPolicy(PreTrainedPolicy):
             batch = {k: torch.stack(list(self._queues[k]), dim=1) for k in self.observation_keys} | {
                 OBS_EMBODIMENT: self._queues[OBS_EMBODIMENT][-1]
             }
-        cond = self.encode_observation(batch)[0]
+        cond = self.encode_observation(batch)
         head = batch_embodiments(batch[OBS_EMBODIMENT])
         b = len(cond)
         shape = (b, self.config.horizon, self.unet.action_dim)
