@@ -151,7 +151,6 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=50)
     parser.add_argument("--epochs", type=int, default=30)
     parser.add_argument("--speed-steps", type=int, default=15)
-    parser.add_argument("--start-spread", type=float, default=0.0, help="metres (the env's start_spread)")
     parser.add_argument("--work", type=Path, default=Path("outputs/datasets"))
     parser.add_argument(
         "--only-done",
@@ -165,32 +164,25 @@ def main() -> None:
         for hand in args.hands.split(","):
             if args.only_done and f"record_{hand}" not in stages.done:
                 continue
-            recorded = record(stages, task, hand, args.demos, EPISODE_S[task], args.start_spread)
+            recorded = record(stages, task, hand, args.demos, EPISODE_S[task])
             calibration = stages.work / f"rig_{hand}" / "opfa_sim_cameras.yaml"
             kept = json.loads((recorded / "meta" / "info.json").read_text())["total_episodes"]
-            base = {"hand": hand, "task": task, "demos": kept, "region": REGION, "action_space": "raw",
-                    "start_spread": args.start_spread}  # fmt: skip
-            spread = {"start_spread": args.start_spread} if args.start_spread else {}
+            base = {"hand": hand, "task": task, "demos": kept, "region": REGION, "action_space": "raw"}
             for observation in args.observations.split(","):
                 name = f"{hand}_{observation}"
                 if args.only_done and f"eval_{name}" not in stages.done:
                     continue
                 if observation == "rgb":
-                    env = {"obs_type": "rgb", **spread}
-                    rgb = ["--policy.visual_inputs=rgb"]
-                    run = train_and_eval(
-                        stages, name, recorded, rgb, args.epochs, env, task, hand, args.episodes
-                    )
+                    run = train_and_eval(stages, name, recorded, ["--policy.visual_inputs=rgb"], args.epochs,
+                                         {"obs_type": "rgb"}, task, hand, args.episodes)  # fmt: skip
                     run["image_backbone"] = "small"
                 else:
                     clouds = stages.work / "data" / f"{hand}_clouds"
                     stages.run(f"clouds_{hand}", [clouds], [
                         str(BIN / "lerobot-opfa"), "dataset", "clouds", "--input", str(recorded), "--output",
                         str(clouds), "--cameras", str(calibration), "--n-points", str(N_POINTS)])  # fmt: skip
-                    env = {"n_points": N_POINTS, **spread}
-                    run = train_and_eval(
-                        stages, name, clouds, [], args.epochs, env, task, hand, args.episodes
-                    )
+                    run = train_and_eval(stages, name, clouds, [], args.epochs, {"n_points": N_POINTS}, task,
+                                         hand, args.episodes)  # fmt: skip
                     run["clouds_minutes"] = round(stages.done[f"clouds_{hand}"]["wall_s"] / 60, 2)
                     run |= speeds(stages, recorded, clouds, calibration, args.speed_steps)
                 runs.append({**base, "observation": observation, **run})

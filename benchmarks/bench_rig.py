@@ -86,16 +86,13 @@ class Stages:
         return {k: v for k, v in self.done[name].items() if k != "commit"}
 
 
-def rig_args(
-    task: str, hand: str, calibration: Path, episode_s: float, seed: int, start_spread: float = 0.0
-) -> list[str]:
+def rig_args(task: str, hand: str, calibration: Path, episode_s: float, seed: int) -> list[str]:
     return [
         "--robot.type=opfa_sim",
         f"--robot.hand={hand}",
         f"--robot.task={task}",
         f"--robot.regions={REGION}",
         f"--robot.seed={seed}",
-        f"--robot.start_spread={start_spread}",
         "--robot.rgb_cameras=front",
         f"--robot.episode_time_s={episode_s}",
         f"--robot.calibration_dir={calibration}",
@@ -111,14 +108,13 @@ def episodes_log(calibration: Path) -> list[dict]:
     return [json.loads(line) for line in path.read_text().splitlines()]
 
 
-def record(stages: Stages, task: str, hand: str, demos: int, episode_s: float = RECORD_S,
-           start_spread: float = 0.0) -> Path:  # fmt: skip
+def record(stages: Stages, task: str, hand: str, demos: int, episode_s: float = RECORD_S) -> Path:
     """The expert's demos of `hand`, failed episodes dropped."""
     work, calibration = stages.work, stages.work / f"rig_{hand}"
     recorded, kept = work / "data" / f"{hand}_recorded", work / "data" / hand
     command = [
         str(BIN / "lerobot-record"),
-        *rig_args(task, hand, calibration, episode_s, 0, start_spread),
+        *rig_args(task, hand, calibration, episode_s, 0),
         "--teleop.type=opfa_expert",
         f"--dataset.repo_id=local/{hand}_rig",
         f"--dataset.root={recorded}",

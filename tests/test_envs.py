@@ -193,33 +193,3 @@ def test_the_env_shows_the_rigs_colour_pictures_of_the_same_scene(tmp_path):
     cfg = OpfaEnvConfig(task="lift", hand="umi", obs_type="pointcloud_rgb", rgb_cameras="front,left")
     assert cfg.features_map["pixels/left_rgb"] == "observation.images.left_rgb"
     assert cfg.features["pixels/front_rgb"].shape == (96, 128, 3)
-
-
-def test_start_spread_moves_the_wrists_start_and_the_expert_starts_from_it(tmp_path):
-    """With `start_spread` the wrist starts anywhere within it of home (a fixed start lets a policy read the
-    object's place from its own path); the expert's first target is that start, and it still succeeds."""
-    from lerobot_opfa.envs.demos import expert_episode
-    from lerobot_opfa.envs.scene import HOME
-
-    env = OpfaSimEnv("press_button", "umi", regions="mid_center", obs_type="pointcloud_state",
-                     pointcloud_source="geometry", n_points=32, start_spread=0.05)  # fmt: skip
-    starts = []
-    for seed in range(3):
-        frames, ok = expert_episode(env, seed=seed)
-        assert ok
-        starts.append(frames[0]["observation.state"][:3])
-        assert np.abs(frames[0]["action"][:3] - env.wrist_start[:3]).max() < 0.01, "moves off from its start"
-    starts = np.stack(starts)
-    assert np.abs(starts - HOME[:3]).max() <= 0.05 + 0.002, "within the spread (and settling)"
-    assert np.ptp(starts, axis=0).max() > 0.01, "episodes start at different places"
-    fixed = OpfaSimEnv("press_button", "umi", obs_type="state")
-    fixed.reset(seed=0)
-    assert np.array_equal(fixed.wrist_start, HOME)
-    with pytest.raises(ValueError, match="start_spread must be >= 0"):
-        OpfaSimEnv(start_spread=-0.1)
-    env.close()
-    from lerobot_opfa.rig.robot import OpfaSimRobot, OpfaSimRobotConfig
-
-    rig = OpfaSimRobotConfig(hand="umi", task="press_button", calibration_dir=tmp_path, start_spread=0.05)
-    assert OpfaSimRobot(rig).env.start_spread == 0.05, "recorded as the env evaluates"
-    assert OpfaEnvConfig(start_spread=0.05).gym_kwargs["start_spread"] == 0.05

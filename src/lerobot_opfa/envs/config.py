@@ -53,7 +53,6 @@ class OpfaEnvConfig(EnvConfig):
     episode_length: int | None = None  # steps; None: the task's default
     render_width: int = 320
     render_height: int = 240
-    start_spread: float = 0.0  # metres: each episode's wrist starts up to this far from home in x, y, z
     features: dict[str, PolicyFeature] = field(default_factory=dict)
     features_map: dict[str, str] = field(default_factory=dict)
 
@@ -113,7 +112,6 @@ class OpfaEnvConfig(EnvConfig):
             "fps": self.fps,
             "render_width": self.render_width,
             "render_height": self.render_height,
-            "start_spread": self.start_spread,
             "max_episode_steps": self.episode_length or TASKS[self.task].episode_steps,
         }
 

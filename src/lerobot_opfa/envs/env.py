@@ -52,9 +52,6 @@ class OpfaSimEnv(gym.Env):
     world-frame xyz, flattened so LeRobot datasets built from it can be merged; `environment_state` is the
     task's object state (`tasks.ENV_STATE_DIM`); `pixels` (obs types with `rgb`) holds each of
     `rgb_cameras` as `<name>_rgb`, (camera_height, camera_width, 3) uint8, as the rig records them.
-    `start_spread` (metres) starts each episode's wrist up to that far from home along x, y and z, as a
-    person's demonstrations do not all start at one pose; with a fixed start, a policy can tell where the
-    object is from its own path and need not look (the copycat problem).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
@@ -75,7 +72,6 @@ class OpfaSimEnv(gym.Env):
         render_mode: str = "rgb_array",
         render_width: int = 320,
         render_height: int = 240,
-        start_spread: float = 0.0,
     ) -> None:
         self.task = make_task(task)
         self.hand_model = load_hand(hand)
@@ -86,9 +82,6 @@ class OpfaSimEnv(gym.Env):
         self.rgb_cameras = parse_cameras(rgb_cameras)
         self.camera_size = (camera_height, camera_width)
         self.n_points, self.render_mode = n_points, render_mode
-        if start_spread < 0:
-            raise ValueError(f"start_spread must be >= 0 metres, got {start_spread}")
-        self.start_spread = start_spread
         self.render_size = (render_height, render_width)
         self.metadata = {**self.metadata, "render_fps": fps}
 
@@ -172,12 +165,9 @@ class OpfaSimEnv(gym.Env):
         ]
         xy = REGIONS[self.region].sample(self.np_random)
         self.placement = self.task.place(self.scene, self.data, xy, self.np_random)
-        self.wrist_start = HOME.copy()  # where the wrist starts: home, or near it (`start_spread`)
-        if self.start_spread:  # drawn only then, so episodes without it stay as they were
-            self.wrist_start[:3] += self.np_random.uniform(-self.start_spread, self.start_spread, 3)
-        self.data.qpos[self.scene.wrist_qpos] = self.wrist_start
+        self.data.qpos[self.scene.wrist_qpos] = HOME
         self.data.qpos[self.scene.chain_qpos] = self.hand_open_all
-        self.data.ctrl[self.ctrl_index] = np.concatenate([self.wrist_start, self.hand_open])
+        self.data.ctrl[self.ctrl_index] = np.concatenate([HOME, self.hand_open])
         mujoco.mj_forward(self.model, self.data)
         mujoco.mj_step(self.model, self.data, SETTLE_STEPS)
         return self.observation(), {"is_success": False, "region": self.region}

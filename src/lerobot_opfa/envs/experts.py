@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from lerobot_opfa.envs.env import OpfaSimEnv
-from lerobot_opfa.envs.scene import tool_to_world
+from lerobot_opfa.envs.scene import HOME, tool_to_world
 from lerobot_opfa.envs.tasks import Lift, LiftBox, PickPlace, PressButton, PullDrawer
 
 # Hands close this far past the spec's grasp pose (clipped to the limits), so the servos keep squeezing an
@@ -66,7 +66,7 @@ class ScriptedExpert:
         else:
             self.closed = np.clip(self.open + SQUEEZE * (self.grasp - self.open), self.lower, self.upper)
         self.tool = env.scene.tool
-        self.start = Waypoint(np.array([*env.wrist_start[:3], env.wrist_start[3]]), 0.0, 1)
+        self.start = Waypoint(np.array([*HOME[:3], HOME[3]]), 0.0, 1)
         self.plan = self._plan()
         self.schedule = np.cumsum([w.steps for w in self.plan])
         self.t = 0

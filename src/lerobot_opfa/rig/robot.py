@@ -61,7 +61,6 @@ class OpfaSimRobotConfig(RobotConfig):
     rgb_cameras: str = ""  # comma-separated, the same cameras in colour (`<name>_rgb` features)
     width: int = 128
     height: int = 96
-    start_spread: float = 0.0  # metres: each episode's wrist starts up to this far from home in x, y, z
     episode_time_s: float | None = None
     """The recorder's episode length: the scene resets at the first observation this long after the
     episode's first (LeRobot's record and episodic rollout loops start no step after that time)."""
@@ -87,7 +86,7 @@ class OpfaSimRobot(Robot):
         super().__init__(config)
         self.config = config
         self.env = OpfaSimEnv(task=config.task, hand=config.hand, regions=config.regions, obs_type="state",
-                              fps=config.fps, start_spread=config.start_spread)  # fmt: skip
+                              fps=config.fps)  # fmt: skip
         # what LeRobot records as the dataset's robot_type: the hand, which this package reads it as
         self.name = self.robot_type = self.env.hand_model.name
         self.joint_names = list(self.env.state_names)
