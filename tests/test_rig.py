@@ -64,15 +64,21 @@ def test_lerobot_record_with_the_expert_writes_depth_episodes_and_logs_their_out
     assert colour.shape == (3, 96, 128) and colour.dtype == torch.float32 and colour.std() > 0.05
 
 
-def test_the_in_memory_dataset_serves_the_recorded_video_frames_as_lerobot_does(recorded):
+@pytest.mark.parametrize("return_uint8", [False, True])
+def test_the_in_memory_dataset_serves_the_recorded_video_frames_as_lerobot_does(recorded, return_uint8):
+    """Also from a dataset opened as `lerobot-train` opens it (`return_uint8`: colour decoded as uint8),
+    which `lerobot-opfa train` holds in memory: once, that read 0-255 frames as 0-1 and trained every RGB
+    policy on wrapped colours."""
     from lerobot_opfa.datasets.in_memory import InMemoryDataset
 
     deltas = {"observation.images.front_rgb": [-0.05, 0.0], "observation.images.front_depth": [-0.05, 0.0],
               "action": [0.0, 0.05]}  # fmt: skip
-    source = LeRobotDataset("local/rig", root=recorded / "rig", delta_timestamps=deltas)
-    held = InMemoryDataset(source)
-    for index in (0, 7, len(source) - 1):
-        expected, served = source[index], held[index]
+    reference = LeRobotDataset("local/rig", root=recorded / "rig", delta_timestamps=deltas)
+    held = InMemoryDataset(
+        LeRobotDataset("local/rig", root=recorded / "rig", delta_timestamps=deltas, return_uint8=return_uint8)
+    )
+    for index in (0, 7, len(reference) - 1):
+        expected, served = reference[index], held[index]
         for key in ("observation.images.front_rgb", "observation.images.front_depth", "action"):
             assert served[key].dtype == expected[key].dtype and served[key].shape == expected[key].shape
             assert torch.equal(served[key], expected[key]), (index, key)

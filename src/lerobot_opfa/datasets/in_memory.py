@@ -170,7 +170,9 @@ def _read_columns(hf_dataset, reference: dict, images: list[str]) -> dict[str, n
 
 def _read_videos(source: LeRobotDataset, columns: dict[str, np.ndarray], colour: set[str]) -> dict:
     """Every frame of every video feature, in row order, decoded once by LeRobot's own reader (depth maps
-    dequantised as it serves them); colour frames as uint8 (they were recorded as such), depth as float32."""
+    dequantised as it serves them); colour frames as uint8 (they were recorded as such), depth as float32.
+    The reader gives colour as float32 in [0, 1], or as uint8 where the dataset was opened with
+    `return_uint8` (as `lerobot-train`'s dataset factory opens it)."""
     keys = list(source.meta.video_keys)
     if not keys:
         return {}
@@ -191,7 +193,7 @@ def _read_videos(source: LeRobotDataset, columns: dict[str, np.ndarray], colour:
         frames = source.reader._query_videos(query, int(episode))  # LeRobot's decode and dequantise
         for key, value in frames.items():
             value = value.reshape(len(rows), *value.shape[-3:]).numpy()
-            if key in colour:
+            if key in colour and value.dtype != np.uint8:  # LeRobot's training decodes to uint8 already
                 value = np.rint(value * 255).astype(np.uint8)
             if key not in videos:
                 videos[key] = np.empty((n_frames, *value.shape[1:]), dtype=value.dtype)
