@@ -315,3 +315,28 @@ def test_the_plugins_rgb_camera_alone_or_beside_the_cloud_trains_and_acts_throug
     with torch.no_grad():
         action = post(policy.select_action(pre(observation)))
     assert action.shape == (1, len(GHAND_FINGERS)) and torch.isfinite(action).all()
+
+
+def test_image_goal_trains_the_first_pictures_features_on_the_episodes_last_action(rigs):
+    policy, pre, post, frames = make_policy(
+        rigs, "ghand", action_space="galr", joint_map=str(rigs / "ghand_map.yaml"), visual_inputs="rgb",
+        image_feature_dim=8, image_goal=True,
+    )  # fmt: skip
+    config = policy.config
+    episode = frames.meta.episodes[0]
+    first, last = episode["dataset_from_index"], episode["dataset_to_index"] - 1
+    columns = frames.hf_dataset.with_format("torch")
+    raw = batch_of(frames, [first + 4, last])
+    assert raw["action"].shape[1] == config.horizon + 1 and raw[OBS_STATE].shape[1] == config.n_obs_steps + 1
+    assert torch.equal(raw["action"][:, -1], columns["action"][[last, last]]), "the episode's last action"
+    assert torch.equal(raw[OBS_STATE][:, 0], columns[OBS_STATE][[first, first]]), "its first frame"
+    assert torch.equal(raw[OBS_STATE][0, -1], columns[OBS_STATE][first + 4]), "then the history"
+    loss, info = policy.forward(pre(raw))
+    loss.backward()
+    assert loss.item() == pytest.approx(info["denoising_loss"] + info["image_goal_loss"], rel=1e-5)
+    assert policy.image_goal.weight.grad.abs().sum() > 0
+    assert policy.image_encoder.backbone[0].weight.grad.abs().sum() > 0
+    policy.eval()
+    observation = {k: v[-1] for k, v in frames[first].items() if k in (OBS_STATE, "observation.images.front")}
+    with torch.no_grad():
+        assert post(policy.select_action(pre(observation))).shape == (1, len(GHAND_FINGERS))

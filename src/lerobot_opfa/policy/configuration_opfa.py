@@ -22,6 +22,8 @@ from lerobot_opfa.policy.image_encoder import IMAGE_BACKBONES
 
 WRIST_NORMALIZATIONS = ("per_embodiment", "shared")
 VISUAL_INPUTS = ("pointcloud", "rgb", "pointcloud_rgb")
+EPISODE_EDGE = 1_000_000
+"""Frames: a delta that far reaches past any episode, so the clamped window gives its first or last frame."""
 
 
 @PreTrainedConfig.register_subclass("opfa")
@@ -86,6 +88,11 @@ class OpfaConfig(PreTrainedConfig):
     image_feature_dim: int = 64
     image_crop_ratio: float = 0.9
     """Side of the random training crop (centre crop at inference), as a fraction of the image's."""
+    image_goal: bool = False
+    """With colour cameras: the image features of each episode's first frame also learn to predict the
+    episode's last action, a loss beside the denoising one, so every sample asks the encoder where the
+    object is. Denoising alone does not: after the first frames the hand's own path tells where it goes,
+    and a policy trained on it is blind to the object (docs/results.md, "Datasets as a rig records them")."""
 
     # DP3 point encoder
     pointcloud_widths: tuple[int, ...] = (64, 128, 256)
@@ -178,11 +185,19 @@ class OpfaConfig(PreTrainedConfig):
 
     @property
     def observation_delta_indices(self) -> list[int]:
-        return list(range(1 - self.n_obs_steps, 1))
+        """The history, after (`image_goal`) the episode's first frame."""
+        first = [-EPISODE_EDGE] if self.learns_image_goal else []
+        return first + list(range(1 - self.n_obs_steps, 1))
+
+    @property
+    def learns_image_goal(self) -> bool:
+        return self.uses_rgb and self.image_goal
 
     @property
     def action_delta_indices(self) -> list[int]:
-        return list(range(1 - self.n_obs_steps, 1 - self.n_obs_steps + self.horizon))
+        """The chunk's actions, then (`image_goal`) the episode's last, where the window is clamped."""
+        goal = [EPISODE_EDGE] if self.learns_image_goal else []
+        return list(range(1 - self.n_obs_steps, 1 - self.n_obs_steps + self.horizon)) + goal
 
     @property
     def reward_delta_indices(self) -> None:

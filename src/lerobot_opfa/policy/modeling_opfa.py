@@ -77,9 +77,10 @@ class OpfaPolicy(PreTrainedPolicy):
             if config.uses_rgb
             else None
         )
-        visual_dim = (
-            len(clouds) * config.pointcloud_feature_dim + len(self.image_keys) * config.image_feature_dim
-        )
+        image_dim = len(self.image_keys) * config.image_feature_dim
+        visual_dim = len(clouds) * config.pointcloud_feature_dim + image_dim
+        self.image_goal = nn.Linear(image_dim, width) if config.learns_image_goal else None
+        """An episode's first frame's image features -> its last action (training only)."""
         # DP3's state encoder. Fed raw into the U-Net's conditioning, the state would pass its Mish first,
         # which flattens inputs below -0.6 (normalised) to about -0.3: the lower part of every entry's range
         # (the wrist's last centimetres above a button) would barely reach the network.
@@ -147,23 +148,36 @@ class OpfaPolicy(PreTrainedPolicy):
             cloud = batch[OBS_POINTCLOUD]
             features.append(self.point_encoder(cloud.reshape(b * n_obs, -1, 3)).view(b, n_obs, -1))
         if self.image_encoder is not None:
-            images = torch.stack([batch[k] for k in self.image_keys], dim=2)  # (B, n_obs, cams, ...)
-            encoded = self.image_encoder(images.flatten(0, 2))
-            features.append(encoded.view(b, n_obs, -1))
+            features.append(self.encode_images(batch))
         return torch.cat([*features, self.state_encoder(state)], dim=-1).flatten(1)
+
+    def encode_images(self, batch: dict[str, Tensor]) -> Tensor:
+        """Colour cameras (B, T, 3, H, W) each -> features (B, T, I * cameras)."""
+        images = torch.stack([batch[k] for k in self.image_keys], dim=2)  # (B, T, cams, ...)
+        return self.image_encoder(images.flatten(0, 2)).view(*images.shape[:2], -1)
 
     # --- training ----------------------------------------------------------------------------------
     def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
-        """Denoising loss of the action chunk (prediction target: the clean sample by default)."""
+        """Denoising loss of the action chunk (prediction target: the clean sample by default), plus (with
+        `image_goal`) the error of the episode's last action predicted from its first picture."""
+        x0, info = batch[ACTION], {}
+        if self.image_goal is not None:  # the windows start with the episode's first frame, end with its last
+            first = self.encode_images({k: batch[k][:, :1] for k in self.image_keys})[:, 0]
+            info["image_goal_loss"] = F.mse_loss(self.image_goal(first), x0[:, -1])
+            batch = batch | {k: batch[k][:, 1:] for k in self.observation_keys}
+            x0 = x0[:, :-1]
         cond = self.encode_observation(batch)
-        x0 = batch[ACTION]
         noise = torch.randn_like(x0)
         t = torch.randint(0, self.config.num_train_timesteps, (len(x0),), device=x0.device)
         head = batch_embodiments(batch[OBS_EMBODIMENT])
         pred = self.unet(self.ddim.add_noise(x0, noise, t), t, cond, head)
         error = F.mse_loss(pred, self.ddim.target(x0, noise), reduction="none")
         loss = (error * self.loss_weights[head].unsqueeze(1)).sum(-1).mean()
-        return loss, {}
+        if info:
+            info["denoising_loss"] = loss.item()
+            loss = loss + info["image_goal_loss"]
+            info["image_goal_loss"] = info["image_goal_loss"].item()
+        return loss, info
 
     # --- inference ---------------------------------------------------------------------------------
     @torch.inference_mode()
