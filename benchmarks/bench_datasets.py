@@ -9,8 +9,8 @@ dropped with `lerobot-edit-dataset`), in `mid_center`. Then:
   same camera and code). Beside it, training samples/s of the depth path (`lerobot-train` on the depth
   video, clouds made per sample by the step) against the point-cloud path (`lerobot-opfa train` on the
   clouds), measured on the same data in the same run (`bench_training.train`: LeRobot's step times).
-- rgb: a policy trained on the colour video (`--policy.visual_inputs=rgb`, `lerobot-opfa train`, frames
-  decoded once), evaluated with `lerobot-eval --env.obs_type=rgb`.
+- rgb: a policy trained on the colour video (`--policy.visual_inputs=rgb`, with its default `image_goal`;
+  `lerobot-opfa train`, frames decoded once), evaluated with `lerobot-eval --env.obs_type=rgb`.
 Every run also reports `follows_object` (`failures.object_following`): whether its wrist goes where the
 object is, which success alone does not tell on press_button.
 
@@ -175,7 +175,7 @@ def main() -> None:
                 if observation == "rgb":
                     run = train_and_eval(stages, name, recorded, ["--policy.visual_inputs=rgb"], args.epochs,
                                          {"obs_type": "rgb"}, task, hand, args.episodes)  # fmt: skip
-                    run["image_backbone"] = "small"
+                    run |= {"image_backbone": "small", "image_goal": True}
                 else:
                     clouds = stages.work / "data" / f"{hand}_clouds"
                     stages.run(f"clouds_{hand}", [clouds], [

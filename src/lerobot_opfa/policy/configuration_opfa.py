@@ -88,11 +88,11 @@ class OpfaConfig(PreTrainedConfig):
     image_feature_dim: int = 64
     image_crop_ratio: float = 0.9
     """Side of the random training crop (centre crop at inference), as a fraction of the image's."""
-    image_goal: bool = False
+    image_goal: bool = True
     """With colour cameras: the image features of each episode's first frame also learn to predict the
     episode's last action, a loss beside the denoising one, so every sample asks the encoder where the
-    object is. Denoising alone does not: after the first frames the hand's own path tells where it goes,
-    and a policy trained on it is blind to the object (docs/results.md, "Datasets as a rig records them")."""
+    object is. Denoising alone does not: after the first frames the hand's own path tells where it goes, and
+    RGB policies trained without it ignore the object (docs/results.md, "Datasets as a rig records them")."""
 
     # DP3 point encoder
     pointcloud_widths: tuple[int, ...] = (64, 128, 256)
