@@ -47,9 +47,9 @@ TRAIN_ENV = {**os.environ, "OMP_NUM_THREADS": "1"}
 
 
 def train_and_eval(stages: Stages, name: str, data: Path, flags: list[str], epochs: int, eval_env: dict,
-                   task: str, hand: str, episodes: int) -> dict:  # fmt: skip
+                   task: str, hand: str, episodes: int, reported: tuple[str, ...] = ()) -> dict:  # fmt: skip
     """`eval_env`: the `opfa` env's settings beyond task, hand and region, for lerobot-eval and
-    `following` alike."""
+    `following` alike; `reported`: policy settings copied into the run from the trained checkpoint."""
     frames = json.loads((data / "meta" / "info.json").read_text())["total_frames"]
     steps = math.ceil(epochs * frames / 32)
     out, evaluation = stages.work / f"train_{name}", stages.work / f"eval_{name}"
@@ -70,6 +70,7 @@ def train_and_eval(stages: Stages, name: str, data: Path, flags: list[str], epoc
     ]  # fmt: skip
     stages.run(f"eval_{name}", [evaluation], lerobot_eval, env=TRAIN_ENV)
     overall = json.loads((evaluation / "eval_info.json").read_text())["overall"]
+    trained = json.loads((model / "config.json").read_text())
     return {
         "successes": round(overall["pc_success"] * overall["n_episodes"] / 100),
         "episodes": overall["n_episodes"],
@@ -78,6 +79,7 @@ def train_and_eval(stages: Stages, name: str, data: Path, flags: list[str], epoc
         "frames": frames,
         "train_minutes": round(stages.done[f"train_{name}"]["wall_s"] / 60, 2),
         **following(stages, name, model, task, hand, eval_env),
+        **{key: trained[key] for key in reported},
     }
 
 
@@ -174,8 +176,8 @@ def main() -> None:
                     continue
                 if observation == "rgb":
                     run = train_and_eval(stages, name, recorded, ["--policy.visual_inputs=rgb"], args.epochs,
-                                         {"obs_type": "rgb"}, task, hand, args.episodes)  # fmt: skip
-                    run |= {"image_backbone": "small", "image_goal": True}
+                                         {"obs_type": "rgb"}, task, hand, args.episodes,
+                                         ("image_backbone", "image_goal"))  # fmt: skip
                 else:
                     clouds = stages.work / "data" / f"{hand}_clouds"
                     stages.run(f"clouds_{hand}", [clouds], [

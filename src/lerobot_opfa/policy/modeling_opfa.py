@@ -79,8 +79,8 @@ class OpfaPolicy(PreTrainedPolicy):
         )
         image_dim = len(self.image_keys) * config.image_feature_dim
         visual_dim = len(clouds) * config.pointcloud_feature_dim + image_dim
-        self.image_goal = nn.Linear(image_dim, width) if config.learns_image_goal else None
-        """An episode's first frame's image features -> its last action (training only)."""
+        self.image_goal_head = nn.Linear(image_dim, width) if config.learns_image_goal else None
+        """An episode's first frame's image features -> its last action (`image_goal`; training only)."""
         # DP3's state encoder. Fed raw into the U-Net's conditioning, the state would pass its Mish first,
         # which flattens inputs below -0.6 (normalised) to about -0.3: the lower part of every entry's range
         # (the wrist's last centimetres above a button) would barely reach the network.
@@ -138,9 +138,10 @@ class OpfaPolicy(PreTrainedPolicy):
         self._queues[ACTION] = deque(maxlen=self.config.n_action_steps)
 
     # --- conditioning ------------------------------------------------------------------------------
-    def encode_observation(self, batch: dict[str, Tensor]) -> Tensor:
+    def encode_observation(self, batch: dict[str, Tensor], images: Tensor | None = None) -> Tensor:
         """state (B, n_obs, S), pointcloud (B, n_obs, N*3), images (B, n_obs, 3, H, W) -> global condition
-        (B, n_obs * (F + I * cameras + E)), F, I and E the point, image and state encoders' widths."""
+        (B, n_obs * (F + I * cameras + E)), F, I and E the point, image and state encoders' widths. `images`:
+        the colour cameras' features where already encoded (`encode_images`)."""
         state = batch[OBS_STATE]
         b, n_obs = state.shape[:2]
         features = []
@@ -148,7 +149,7 @@ class OpfaPolicy(PreTrainedPolicy):
             cloud = batch[OBS_POINTCLOUD]
             features.append(self.point_encoder(cloud.reshape(b * n_obs, -1, 3)).view(b, n_obs, -1))
         if self.image_encoder is not None:
-            features.append(self.encode_images(batch))
+            features.append(self.encode_images(batch) if images is None else images)
         return torch.cat([*features, self.state_encoder(state)], dim=-1).flatten(1)
 
     def encode_images(self, batch: dict[str, Tensor]) -> Tensor:
@@ -160,24 +161,27 @@ class OpfaPolicy(PreTrainedPolicy):
     def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
         """Denoising loss of the action chunk (prediction target: the clean sample by default), plus (with
         `image_goal`) the error of the episode's last action predicted from its first picture."""
-        x0, info = batch[ACTION], {}
-        if self.image_goal is not None:  # the windows start with the episode's first frame, end with its last
-            first = self.encode_images({k: batch[k][:, :1] for k in self.image_keys})[:, 0]
-            info["image_goal_loss"] = F.mse_loss(self.image_goal(first), x0[:, -1])
-            batch = batch | {k: batch[k][:, 1:] for k in self.observation_keys}
-            x0 = x0[:, :-1]
-        cond = self.encode_observation(batch)
+        if self.image_goal_head is None:
+            return self.denoising_loss(batch, batch[ACTION]), {}
+        # The windows start with the episode's first frame and end with its last action: one encoder pass.
+        images, actions = self.encode_images(batch), batch[ACTION]
+        goal_loss = F.mse_loss(self.image_goal_head(images[:, 0]), actions[:, -1])
+        history = batch | {k: batch[k][:, 1:] for k in self.observation_keys}
+        denoising = self.denoising_loss(history, actions[:, :-1], images[:, 1:])
+        return denoising + goal_loss, {
+            "denoising_loss": denoising.item(),
+            "image_goal_loss": goal_loss.item(),
+        }
+
+    def denoising_loss(self, batch: dict[str, Tensor], x0: Tensor, images: Tensor | None = None) -> Tensor:
+        """The chunk `x0` (B, horizon, A) noised at random steps, denoised under the observation."""
+        cond = self.encode_observation(batch, images)
         noise = torch.randn_like(x0)
         t = torch.randint(0, self.config.num_train_timesteps, (len(x0),), device=x0.device)
         head = batch_embodiments(batch[OBS_EMBODIMENT])
         pred = self.unet(self.ddim.add_noise(x0, noise, t), t, cond, head)
         error = F.mse_loss(pred, self.ddim.target(x0, noise), reduction="none")
-        loss = (error * self.loss_weights[head].unsqueeze(1)).sum(-1).mean()
-        if info:
-            info["denoising_loss"] = loss.item()
-            loss = loss + info["image_goal_loss"]
-            info["image_goal_loss"] = info["image_goal_loss"].item()
-        return loss, info
+        return (error * self.loss_weights[head].unsqueeze(1)).sum(-1).mean()
 
     # --- inference ---------------------------------------------------------------------------------
     @torch.inference_mode()
