@@ -334,7 +334,7 @@ def test_image_goal_trains_the_first_pictures_features_on_the_episodes_last_acti
     loss, info = policy.forward(pre(raw))
     loss.backward()
     assert loss.item() == pytest.approx(info["denoising_loss"] + info["image_goal_loss"], rel=1e-5)
-    assert policy.image_goal_head.weight.grad.abs().sum() > 0
+    assert policy.image_goal.weight.grad.abs().sum() > 0
     assert policy.image_encoder.backbone[0].weight.grad.abs().sum() > 0
     policy.eval()
     observation = {k: v[-1] for k, v in frames[first].items() if k in (OBS_STATE, "observation.images.front")}

@@ -79,7 +79,7 @@ class OpfaPolicy(PreTrainedPolicy):
         )
         image_dim = len(self.image_keys) * config.image_feature_dim
         visual_dim = len(clouds) * config.pointcloud_feature_dim + image_dim
-        self.image_goal_head = nn.Linear(image_dim, width) if config.learns_image_goal else None
+        self.image_goal = nn.Linear(image_dim, width) if config.learns_image_goal else None
         """An episode's first frame's image features -> its last action (`image_goal`; training only)."""
         # DP3's state encoder. Fed raw into the U-Net's conditioning, the state would pass its Mish first,
         # which flattens inputs below -0.6 (normalised) to about -0.3: the lower part of every entry's range
@@ -161,11 +161,11 @@ class OpfaPolicy(PreTrainedPolicy):
     def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
         """Denoising loss of the action chunk (prediction target: the clean sample by default), plus (with
         `image_goal`) the error of the episode's last action predicted from its first picture."""
-        if self.image_goal_head is None:
+        if self.image_goal is None:
             return self.denoising_loss(batch, batch[ACTION]), {}
         # The windows start with the episode's first frame and end with its last action: one encoder pass.
         images, actions = self.encode_images(batch), batch[ACTION]
-        goal_loss = F.mse_loss(self.image_goal_head(images[:, 0]), actions[:, -1])
+        goal_loss = F.mse_loss(self.image_goal(images[:, 0]), actions[:, -1])
         history = batch | {k: batch[k][:, 1:] for k in self.observation_keys}
         denoising = self.denoising_loss(history, actions[:, :-1], images[:, 1:])
         return denoising + goal_loss, {
