@@ -79,7 +79,11 @@ class OpfaPolicy(PreTrainedPolicy):
         )
         image_dim = len(self.image_keys) * config.image_feature_dim
         visual_dim = len(clouds) * config.pointcloud_feature_dim + image_dim
-        self.image_goal = nn.Linear(image_dim, width) if config.learns_image_goal else None
+        self.goal_width = len(config.wrist_names) or width
+        """The image goal is the last action's wrist entries (all entries without a wrist): where the hand
+        ends up is what the picture shows; the hand's final joints (the same grasp in every episode) would
+        dilute it by their count."""
+        self.image_goal = nn.Linear(image_dim, self.goal_width) if config.learns_image_goal else None
         """An episode's first frame's image features -> its last action (`image_goal`; training only)."""
         # DP3's state encoder. Fed raw into the U-Net's conditioning, the state would pass its Mish first,
         # which flattens inputs below -0.6 (normalised) to about -0.3: the lower part of every entry's range
@@ -165,7 +169,7 @@ class OpfaPolicy(PreTrainedPolicy):
             return self.denoising_loss(batch, batch[ACTION]), {}
         # The windows start with the episode's first frame and end with its last action: one encoder pass.
         images, actions = self.encode_images(batch), batch[ACTION]
-        goal_loss = F.mse_loss(self.image_goal(images[:, 0]), actions[:, -1])
+        goal_loss = F.mse_loss(self.image_goal(images[:, 0]), actions[:, -1, : self.goal_width])
         history = batch | {k: batch[k][:, 1:] for k in self.observation_keys}
         denoising = self.denoising_loss(history, actions[:, :-1], images[:, 1:])
         return denoising + goal_loss, {
