@@ -317,12 +317,20 @@ def test_the_plugins_rgb_camera_alone_or_beside_the_cloud_trains_and_acts_throug
     assert action.shape == (1, len(GHAND_FINGERS)) and torch.isfinite(action).all()
 
 
-def test_image_goal_trains_the_first_pictures_features_on_the_episodes_last_action(rigs):
+@pytest.mark.parametrize(
+    ("rig", "goal", "entries"), [("ghand", 0, len(GHAND_FINGERS)), ("arm_inspire", 7, 13)]
+)
+def test_image_goal_trains_the_first_pictures_features_on_the_episodes_last_wrist_pose(
+    rigs, rig, goal, entries
+):
+    """`goal`: the policy entries the goal predicts, the wrist's (the arm's 7 here), 0 for all of them where
+    there is no wrist (the LEAP plugin records the hand alone)."""
     policy, pre, post, frames = make_policy(
-        rigs, "ghand", action_space="galr", joint_map=str(rigs / "ghand_map.yaml"), visual_inputs="rgb",
+        rigs, rig, action_space="galr", joint_map=str(rigs / f"{rig}_map.yaml"), visual_inputs="rgb",
         image_feature_dim=8, image_goal=True,
     )  # fmt: skip
     config = policy.config
+    assert policy.image_goal.out_features == (goal or config.policy_width)
     episode = frames.meta.episodes[0]
     first, last = episode["dataset_from_index"], episode["dataset_to_index"] - 1
     columns = frames.hf_dataset.with_format("torch")
@@ -339,4 +347,4 @@ def test_image_goal_trains_the_first_pictures_features_on_the_episodes_last_acti
     policy.eval()
     observation = {k: v[-1] for k, v in frames[first].items() if k in (OBS_STATE, "observation.images.front")}
     with torch.no_grad():
-        assert post(policy.select_action(pre(observation))).shape == (1, len(GHAND_FINGERS))
+        assert post(policy.select_action(pre(observation))).shape == (1, entries)

@@ -90,9 +90,10 @@ class OpfaConfig(PreTrainedConfig):
     """Side of the random training crop (centre crop at inference), as a fraction of the image's."""
     image_goal: bool = True
     """With colour cameras: the image features of each episode's first frame also learn to predict the
-    episode's last action, a loss beside the denoising one, so every sample asks the encoder where the
-    object is. Trained on denoising alone, RGB policies from 20 demos ignored the object though the encoder
-    can place it (docs/results.md, "Datasets as a rig records them")."""
+    episode's last wrist pose (all its last action's entries where there is no wrist), a loss beside the
+    denoising one, so every sample asks the encoder where the object is. Trained on denoising alone, RGB
+    policies from 20 demos ignored the object though the encoder can place it (docs/results.md, "Datasets
+    as a rig records them")."""
 
     # DP3 point encoder
     pointcloud_widths: tuple[int, ...] = (64, 128, 256)

@@ -81,10 +81,11 @@ class OpfaPolicy(PreTrainedPolicy):
         visual_dim = len(clouds) * config.pointcloud_feature_dim + image_dim
         self.goal_width = len(config.wrist_names) or width
         """The image goal is the last action's wrist entries (all entries without a wrist): where the hand
-        ends up is what the picture shows; the hand's final joints (the same grasp in every episode) would
-        dilute it by their count."""
+        ends up is what the picture shows. With the hand's joints too (the same grasp in every episode),
+        Inspire's 6 joints diluted it: its goal loss sat at the mean's for most of training and RGB lift
+        succeeded 29/50, against 46/50 with the wrist alone (docs/results.md)."""
         self.image_goal = nn.Linear(image_dim, self.goal_width) if config.learns_image_goal else None
-        """An episode's first frame's image features -> its last action (`image_goal`; training only)."""
+        """An episode's first frame's image features -> its last wrist pose (`image_goal`; training only)."""
         # DP3's state encoder. Fed raw into the U-Net's conditioning, the state would pass its Mish first,
         # which flattens inputs below -0.6 (normalised) to about -0.3: the lower part of every entry's range
         # (the wrist's last centimetres above a button) would barely reach the network.
@@ -164,7 +165,7 @@ class OpfaPolicy(PreTrainedPolicy):
     # --- training ----------------------------------------------------------------------------------
     def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
         """Denoising loss of the action chunk (prediction target: the clean sample by default), plus (with
-        `image_goal`) the error of the episode's last action predicted from its first picture."""
+        `image_goal`) the error of the episode's last wrist pose predicted from its first picture."""
         if self.image_goal is None:
             return self.denoising_loss(batch, batch[ACTION]), {}
         # The windows start with the episode's first frame and end with its last action: one encoder pass.
