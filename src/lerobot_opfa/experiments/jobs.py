@@ -266,13 +266,20 @@ class Workspace:
 
 
 def source_commit() -> str | None:
-    """The git commit of the package's source (with `-dirty` for uncommitted changes), if it is a checkout."""
-    result = subprocess.run(
-        ["git", "describe", "--always", "--dirty", "--abbrev=40"],
-        cwd=Path(__file__).parent, capture_output=True, text=True,
-    )  # fmt: skip
-    commit = result.stdout.strip()
-    return commit if result.returncode == 0 and commit else None
+    """The git commit of the package's source, if it is a checkout, with `-dirty` for uncommitted changes
+    outside `benchmarks/results` (what a benchmark run writes there does not change the code it ran)."""
+    package = Path(__file__).parent
+    head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=package, capture_output=True, text=True)
+    if head.returncode != 0 or not head.stdout.strip():
+        return None
+    paths = [":(top)", ":(top,exclude)benchmarks/results"]
+    changes = subprocess.run(
+        ["git", "status", "--porcelain", "--untracked-files=no", "--", *paths],
+        cwd=package,
+        capture_output=True,
+        text=True,
+    )
+    return head.stdout.strip() + ("-dirty" if changes.stdout.strip() else "")
 
 
 def write_json(path: Path, content) -> None:
