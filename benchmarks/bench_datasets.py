@@ -12,7 +12,8 @@ dropped with `lerobot-edit-dataset`), in `mid_center`. Then:
 - rgb: a policy trained on the colour video (`--policy.visual_inputs=rgb`, with its default `image_goal`;
   `lerobot-opfa train`, frames decoded once), evaluated with `lerobot-eval --env.obs_type=rgb`.
 Every run also reports `follows_object` (`failures.object_following`): whether its wrist goes where the
-object is, which success alone does not tell on press_button.
+object is, which success alone does not tell on press_button; RGB runs `goal_scatter_cm`
+(`failures.image_goal_scatter`): how precisely their features place the object from the first picture.
 
     MUJOCO_GL=egl .venv/bin/python benchmarks/bench_datasets.py [--work outputs/datasets] [--epochs 30]
 
@@ -42,6 +43,7 @@ POLICY = ["--policy.type=opfa", "--policy.action_space=raw", "--policy.pointclou
           "--policy.optimizer_lr=3e-4", "--policy.device=cpu", "--policy.push_to_hub=false",
           "--batch_size=32", "--wandb.enable=false", "--seed=0"]  # fmt: skip
 FOLLOWING_EPISODES, FOLLOWING_SEED = 20, 5000
+GOAL_EPISODES, GOAL_SEED = 40, 7000
 TRAIN_ENV = {**os.environ, "OMP_NUM_THREADS": "1"}
 """One torch thread: other jobs share the 2 cores during the run, where two threads collapse."""
 
@@ -93,6 +95,17 @@ def following(stages: Stages, name: str, model: Path, task: str, hand: str, eval
     return stages.measure(
         f"following_{name}", lambda: object_following(model, config, FOLLOWING_EPISODES, FOLLOWING_SEED)
     )
+
+
+def goal_scatter(stages: Stages, name: str, task: str, hand: str) -> dict:
+    """`failures.image_goal_scatter` over GOAL_EPISODES resets (kept in stages.json): how precisely the
+    trained RGB features place the object, beside `follows_object`, where the policy then goes."""
+    from lerobot_opfa.envs.config import OpfaEnvConfig
+    from lerobot_opfa.experiments.failures import image_goal_scatter
+
+    model = stages.work / f"train_{name}" / "checkpoints" / "last" / "pretrained_model"
+    config = OpfaEnvConfig(task=task, hand=hand, regions=REGION, obs_type="rgb")
+    return stages.measure(f"goal_{name}", lambda: image_goal_scatter(model, config, GOAL_EPISODES, GOAL_SEED))
 
 
 def speeds(stages: Stages, recorded: Path, clouds: Path, calibration: Path, steps: int) -> dict:
@@ -157,7 +170,7 @@ def main() -> None:
     parser.add_argument(
         "--only-done",
         action="store_true",
-        help="report the runs already evaluated (measuring only their object following where missing)",
+        help="report the runs already evaluated (measuring their following and goal scatter where missing)",
     )
     args = parser.parse_args()
     runs = []
@@ -178,6 +191,7 @@ def main() -> None:
                     run = train_and_eval(stages, name, recorded, ["--policy.visual_inputs=rgb"], args.epochs,
                                          {"obs_type": "rgb"}, task, hand, args.episodes,
                                          ("image_backbone", "image_goal"))  # fmt: skip
+                    run |= goal_scatter(stages, name, task, hand)
                 else:
                     clouds = stages.work / "data" / f"{hand}_clouds"
                     stages.run(f"clouds_{hand}", [clouds], [

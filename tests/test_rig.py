@@ -17,7 +17,7 @@ import torch
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
 from lerobot_opfa.envs.config import OpfaEnvConfig
-from lerobot_opfa.experiments.failures import object_following
+from lerobot_opfa.experiments.failures import image_goal_scatter, object_following
 
 ENV = {**os.environ, "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1", "MUJOCO_GL": "egl"}
 
@@ -112,6 +112,8 @@ def test_an_rgb_policy_trains_on_the_rigs_colour_camera_and_acts_in_lerobot_eval
     config = OpfaEnvConfig(task="press_button", hand="umi", obs_type="rgb", episode_length=6)
     following = object_following(checkpoint, config, episodes=3, seed=0)
     assert following["following_episodes"] == 3 and np.isfinite(following["follows_object"])
+    scatter = image_goal_scatter(checkpoint, config, episodes=3, seed=0)
+    assert scatter["goal_episodes"] == 3 and np.isfinite(scatter["goal_scatter_cm"]).all()
 
 
 def test_a_checkpoint_trained_on_the_rigs_depth_deploys_with_lerobot_rollout(recorded, tmp_path):

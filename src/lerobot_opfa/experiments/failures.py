@@ -21,11 +21,10 @@ if TYPE_CHECKING:
 OUTCOMES = ("success", "never_touched", "touched_failed")
 
 
-def rollouts(model: Path, config: OpfaEnvConfig, episodes: int, seed: int) -> Iterator[tuple]:
-    """(env at the episode's end, success, touched) for each of `episodes` seeded episodes of the policy in
-    `model` (a `pretrained_model` folder) in the env `config` describes."""
+def _loaded(model: Path, config: OpfaEnvConfig) -> tuple:
+    """The policy in `model` (a `pretrained_model` folder) with its processors, as `lerobot-eval` loads
+    them, and the env `config` describes, with a function that batches its observations for them."""
     import gymnasium as gym
-    import torch
     from lerobot.envs.utils import preprocess_observation
     from lerobot.policies.factory import make_pre_post_processors
 
@@ -42,6 +41,20 @@ def rollouts(model: Path, config: OpfaEnvConfig, episodes: int, seed: int) -> It
     def batched(value):  # `pixels` is a dict of cameras
         return {k: v[None] for k, v in value.items()} if isinstance(value, dict) else np.asarray(value)[None]
 
+    def policy_input(observation: dict) -> dict:
+        batch = preprocess_observation({k: batched(v) for k, v in observation.items()})
+        batch["task"] = [env.task_description]
+        return preprocessor(env_preprocessor(batch))
+
+    return policy, policy_input, postprocessor, preprocessor, env, max_steps
+
+
+def rollouts(model: Path, config: OpfaEnvConfig, episodes: int, seed: int) -> Iterator[tuple]:
+    """(env at the episode's end, success, touched) for each of `episodes` seeded episodes of the policy in
+    `model` (a `pretrained_model` folder) in the env `config` describes."""
+    import torch
+
+    policy, policy_input, postprocessor, preprocessor, env, max_steps = _loaded(model, config)
     try:
         for episode in range(episodes):
             observation, _ = env.reset(seed=seed + episode)
@@ -50,10 +63,8 @@ def rollouts(model: Path, config: OpfaEnvConfig, episodes: int, seed: int) -> It
             preprocessor.reset()
             touched = success = False
             for _ in range(max_steps):
-                batch = preprocess_observation({k: batched(v) for k, v in observation.items()})
-                batch["task"] = [env.task_description]
                 with torch.inference_mode():
-                    action = policy.select_action(preprocessor(env_preprocessor(batch)))
+                    action = policy.select_action(policy_input(observation))
                 observation, _, success, _, _ = env.step(postprocessor(action)[0].numpy())
                 touched = touched or env.task.touched(env.scene, env.data)
                 if success:
@@ -98,3 +109,30 @@ def object_following(model: Path, config: OpfaEnvConfig, episodes: int, seed: in
     placed, reached = np.array(placed), np.array(reached)
     slopes = [np.polyfit(placed[:, axis], reached[:, axis], 1)[0] for axis in range(2)]
     return {"follows_object": round(float(np.mean(slopes)), 2), "following_episodes": episodes}
+
+
+def image_goal_scatter(model: Path, config: OpfaEnvConfig, episodes: int, seed: int) -> dict:
+    """How precisely an RGB policy's `image_goal` head places the object from the first picture: over
+    `episodes` resets, the scatter of its wrist estimate's x and y about their least-squares lines on where
+    reset placed the object, over those lines' slopes: in cm of the object's place. What the features know,
+    beside what the policy does with them (`object_following`)."""
+    import torch
+
+    policy, policy_input, _, _, env, _ = _loaded(model, config)
+    placed, estimated = [], []
+    try:
+        for episode in range(episodes):
+            batch = policy_input(env.reset(seed=seed + episode)[0])
+            with torch.inference_mode():
+                features = policy.encode_images({k: batch[k][:, None] for k in policy.image_keys})
+                estimated.append(policy.image_goal(features[:, 0])[0, :2].numpy())
+            placed.append(env.placement.xy.copy())
+    finally:
+        env.close()
+    placed, estimated = np.array(placed), np.array(estimated)
+    scatter = []
+    for axis in range(2):
+        slope, intercept = np.polyfit(placed[:, axis], estimated[:, axis], 1)
+        residual = estimated[:, axis] - (slope * placed[:, axis] + intercept)
+        scatter.append(round(float(100 * residual.std() / abs(slope)), 2))
+    return {"goal_scatter_cm": scatter, "goal_episodes": episodes}
