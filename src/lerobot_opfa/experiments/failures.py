@@ -106,9 +106,19 @@ def object_following(model: Path, config: OpfaEnvConfig, episodes: int, seed: in
     for env, _, _ in rollouts(model, config, episodes, seed):
         placed.append(env.placement.xy.copy())
         reached.append(env.data.qpos[env.scene.wrist_qpos][:2].copy())
-    placed, reached = np.array(placed), np.array(reached)
-    slopes = [np.polyfit(placed[:, axis], reached[:, axis], 1)[0] for axis in range(2)]
+    slopes, _ = _lines(np.array(placed), np.array(reached))
     return {"follows_object": round(float(np.mean(slopes)), 2), "following_episodes": episodes}
+
+
+def _lines(placed: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per axis (x, y): the least-squares slope of `values` on where reset `placed` the object, and the
+    standard deviation of the residuals about that line."""
+    slopes, scatters = [], []
+    for axis in range(2):
+        slope, intercept = np.polyfit(placed[:, axis], values[:, axis], 1)
+        slopes.append(slope)
+        scatters.append((values[:, axis] - (slope * placed[:, axis] + intercept)).std())
+    return np.array(slopes), np.array(scatters)
 
 
 def image_goal_scatter(model: Path, config: OpfaEnvConfig, episodes: int, seed: int) -> dict:
@@ -129,10 +139,8 @@ def image_goal_scatter(model: Path, config: OpfaEnvConfig, episodes: int, seed: 
             placed.append(env.placement.xy.copy())
     finally:
         env.close()
-    placed, estimated = np.array(placed), np.array(estimated)
-    scatter = []
-    for axis in range(2):
-        slope, intercept = np.polyfit(placed[:, axis], estimated[:, axis], 1)
-        residual = estimated[:, axis] - (slope * placed[:, axis] + intercept)
-        scatter.append(round(float(100 * residual.std() / abs(slope)), 2))
-    return {"goal_scatter_cm": scatter, "goal_episodes": episodes}
+    slopes, scatters = _lines(np.array(placed), np.array(estimated))
+    return {
+        "goal_scatter_cm": [round(float(c), 2) for c in 100 * scatters / abs(slopes)],
+        "goal_episodes": episodes,
+    }

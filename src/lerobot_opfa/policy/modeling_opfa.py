@@ -79,12 +79,12 @@ class OpfaPolicy(PreTrainedPolicy):
         )
         image_dim = len(self.image_keys) * config.image_feature_dim
         visual_dim = len(clouds) * config.pointcloud_feature_dim + image_dim
-        self.goal_width = len(config.wrist_names) or width
-        """The image goal is the last action's wrist entries (all entries without a wrist): where the hand
-        ends up is what the picture shows. With the hand's joints too (the same grasp in every episode),
-        Inspire's 6 joints diluted it: its goal loss sat at the mean's for most of training and RGB lift
-        succeeded 29/50, against 46/50 with the wrist alone (docs/results.md)."""
-        self.image_goal = nn.Linear(image_dim, self.goal_width) if config.learns_image_goal else None
+        # The image goal is the last action's wrist entries (all entries without a wrist): where the hand
+        # ends up is what the picture shows. With the hand's joints too (the same grasp in every episode),
+        # Inspire's 6 joints diluted it: its goal loss sat at the mean's for most of training and RGB lift
+        # succeeded 29/50, against 46/50 with the wrist alone (docs/results.md).
+        goal_width = len(config.wrist_names) or width
+        self.image_goal = nn.Linear(image_dim, goal_width) if config.learns_image_goal else None
         """An episode's first frame's image features -> its last wrist pose (`image_goal`; training only)."""
         # DP3's state encoder. Fed raw into the U-Net's conditioning, the state would pass its Mish first,
         # which flattens inputs below -0.6 (normalised) to about -0.3: the lower part of every entry's range
@@ -170,7 +170,7 @@ class OpfaPolicy(PreTrainedPolicy):
             return self.denoising_loss(batch, batch[ACTION]), {}
         # The windows start with the episode's first frame and end with its last action: one encoder pass.
         images, actions = self.encode_images(batch), batch[ACTION]
-        goal_loss = F.mse_loss(self.image_goal(images[:, 0]), actions[:, -1, : self.goal_width])
+        goal_loss = F.mse_loss(self.image_goal(images[:, 0]), actions[:, -1, : self.image_goal.out_features])
         history = batch | {k: batch[k][:, 1:] for k in self.observation_keys}
         denoising = self.denoising_loss(history, actions[:, :-1], images[:, 1:])
         return denoising + goal_loss, {
