@@ -11,7 +11,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
+
+from lerobot_opfa.yaml_files import YamlFileError, read_yaml
 
 # Workspace crop (world frame) of the benchmark: above the table top, inside the table's footprint.
 WORKSPACE_LOW = np.array([-0.45, -0.40, 0.004])
@@ -112,15 +113,10 @@ class DepthRig:
     def load(cls, path: Path | str) -> DepthRig:
         """A calibration YAML: `cameras: {KEY: {fx, fy, cx, cy, camera_to_world: 4x4}}`, optional
         `depth_unit` (mm) and `workspace: {low, high, voxel}`."""
-        path = Path(path)
-        if not path.is_file():
-            raise DepthRigError(f"camera calibration {path}: no such file")
         try:
-            raw = yaml.safe_load(path.read_text())
-        except yaml.YAMLError as err:
-            raise DepthRigError(
-                f"camera calibration {path} is not valid YAML ({err})".replace("\n", " ")
-            ) from None
+            raw = read_yaml(path, "camera calibration")
+        except YamlFileError as err:
+            raise DepthRigError(str(err)) from None
         return cls.from_dict(raw, str(path))
 
     @classmethod

@@ -26,11 +26,11 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import torch
-import yaml
 
 from lerobot_opfa.hands.registry import builtin_hands, hand_ref, load_spec
 from lerobot_opfa.hands.spec import HandSpec
 from lerobot_opfa.hands.universal import FINGERS
+from lerobot_opfa.yaml_files import YamlFileError, read_yaml
 
 POSITION_SUFFIX = ".pos"
 """LeRobot's robots name a motor's position entry `<motor>.pos` (what `lerobot-record` writes)."""
@@ -71,12 +71,10 @@ class JointMap:
     @classmethod
     def load(cls, path: str | Path) -> JointMap:
         path = Path(path)
-        if not path.is_file():
-            raise JointMapError(f"joint map {path} not found")
         try:
-            raw = yaml.safe_load(path.read_text())
-        except yaml.YAMLError as err:
-            raise JointMapError(f"joint map {path} is not valid YAML: {str(err).splitlines()[0]}") from None
+            raw = read_yaml(path, "joint map")
+        except YamlFileError as err:
+            raise JointMapError(str(err)) from None
         hand = raw.get("hand") if isinstance(raw, dict) else None
         if isinstance(hand, str) and hand not in builtin_hands() and not Path(hand).is_absolute():
             raw["hand"] = str((path.parent / hand).resolve())

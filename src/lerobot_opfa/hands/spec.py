@@ -14,9 +14,8 @@ from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
 
-import yaml
-
 from lerobot_opfa.hands.universal import FINGERS, UNIVERSAL_INDEX
+from lerobot_opfa.yaml_files import YamlFileError, read_yaml
 
 KINDS = ("hand", "gripper")
 MODEL_SUFFIXES = (".urdf", ".xml", ".mjcf")
@@ -91,7 +90,7 @@ class HandSpec:
     def sha256(self) -> str:
         """Hash of what a GaLR checkpoint trained on this hand depends on: the model file and the spec's
         content except its expert poses and description (retuning a grasp pose keeps checkpoints valid)."""
-        raw = yaml.safe_load(self.path.read_text())
+        raw = read_yaml(self.path, "hand spec")
         relevant = {k: v for k, v in raw.items() if k not in ("poses", "description")}
         digest = hashlib.sha256(json.dumps(relevant, sort_keys=True).encode())
         digest.update(self.model_path.read_bytes())
@@ -103,9 +102,9 @@ class HandSpec:
         if not path.is_file():
             raise HandSpecError(path, "<file>", "spec file not found")
         try:
-            raw = yaml.safe_load(path.read_text())
-        except yaml.YAMLError as err:
-            raise HandSpecError(path, "<file>", f"not valid YAML: {err}") from err
+            raw = read_yaml(path, "hand spec")
+        except YamlFileError as err:
+            raise HandSpecError(path, "<file>", str(err).split(": ", 1)[1]) from None
         if not isinstance(raw, dict):
             raise HandSpecError(path, "<file>", "expected a mapping at the top level")
         unknown = sorted(set(raw) - set(FIELDS))
