@@ -16,7 +16,7 @@ for p in $$(ls -d "$$root"/versions/3.1[2-9]*/bin/python3 2>/dev/null | sort -rV
 done; exit 1
 endef
 
-.PHONY: demo test lint format clean-venv
+.PHONY: demo test lint format clean-venv which-python
 
 $(VENV)/.installed: pyproject.toml
 	@if [ ! -x $(PY) ]; then \
@@ -26,6 +26,10 @@ $(VENV)/.installed: pyproject.toml
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e ".[test]"
 	@touch $@
+
+# The Python a new .venv is made with (the tests check that .venv runs it).
+which-python:
+	@$(find_python)
 
 demo: $(VENV)/.installed
 	$(VENV)/bin/lerobot-opfa demo --output-dir outputs/demo

@@ -16,6 +16,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import numpy as np
 import pytest
 from conftest import BUILTIN_HANDS
+from subprocesses import run_command
 
 from lerobot_opfa import cli
 from lerobot_opfa.envs import demos as demos_module
@@ -26,7 +27,7 @@ def _cli(*args: str) -> subprocess.CompletedProcess:
     exe = shutil.which("lerobot-opfa") or shutil.which(
         "lerobot-opfa", path=str(__import__("pathlib").Path(sys.executable).parent)
     )
-    return subprocess.run([exe, *args], capture_output=True, text=True, timeout=300)
+    return run_command([exe, *args], timeout=300)
 
 
 def test_hands_list_json():
@@ -181,7 +182,7 @@ def test_light_commands_do_not_import_torch_or_lerobot():
         "heavy = [m for m in ('torch', 'lerobot', 'mujoco', 'gymnasium') if m in sys.modules]; "
         "assert not heavy, heavy"
     )
-    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    result = run_command([sys.executable, "-c", code], timeout=120)
     assert result.returncode == 0, result.stderr[-2000:]
 
 
@@ -202,7 +203,7 @@ def test_wheel_ships_checkpoints_and_hand_models_without_training_logs(tmp_path)
         str(tmp_path),
         str(root),
     ]
-    result = subprocess.run(command, capture_output=True, text=True, timeout=300)
+    result = run_command(command, timeout=300)
     assert result.returncode == 0, result.stderr[-2000:]
     (wheel,) = tmp_path.glob("lerobot_policy_opfa-*.whl")
     names = zipfile.ZipFile(wheel).namelist()

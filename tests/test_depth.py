@@ -15,6 +15,7 @@ import yaml
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from lerobot.utils.feature_utils import hw_to_dataset_features
 from scipy.spatial import cKDTree
+from subprocesses import run_command
 
 from lerobot_opfa.envs.env import OpfaSimEnv
 from lerobot_opfa.features import OBS_POINTCLOUD
@@ -128,7 +129,7 @@ def _train(root: Path, out: Path, *flags: str) -> subprocess.CompletedProcess:
             f"--dataset.root={root}", "--steps=2", "--batch_size=2", "--num_workers=0", "--save_freq=2",
             f"--output_dir={out}", "--wandb.enable=false", *flags]  # fmt: skip
     command = [sys.executable, "-m", "lerobot.scripts.lerobot_train", *argv]
-    return subprocess.run(command, env=ENV, capture_output=True, text=True, timeout=600)
+    return run_command(command, env=ENV, timeout=600)
 
 
 def test_lerobot_train_on_depth_then_the_checkpoint_acts_on_a_robots_depth_frames(rig, tmp_path):

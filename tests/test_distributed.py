@@ -7,7 +7,6 @@ from __future__ import annotations
 import os
 import re
 import statistics
-import subprocess
 import sys
 from pathlib import Path
 
@@ -15,6 +14,7 @@ import pytest
 import torch
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from lerobot.policies.factory import make_pre_post_processors
+from subprocesses import run_command
 
 from lerobot_opfa.datasets.synthetic import write_synthetic_dataset
 from lerobot_opfa.policy.modeling_opfa import OpfaPolicy
@@ -44,9 +44,7 @@ def train(command: str, demos: Path, out: Path, processes: int) -> str:
     args = [*POLICY, "--dataset.repo_id=local/umi", f"--dataset.root={demos}", f"--steps={STEPS}",
             f"--batch_size={BATCH * 2 // processes}", "--log_freq=1", f"--save_freq={STEPS}",
             "--num_workers=0", f"--output_dir={out}", "--wandb.enable=false", "--seed=0"]  # fmt: skip
-    done = subprocess.run(
-        [*launch, *COMMANDS[command], *args], env=ENV, capture_output=True, text=True, timeout=600
-    )
+    done = run_command([*launch, *COMMANDS[command], *args], env=ENV, timeout=240)
     assert done.returncode == 0, done.stderr[-3000:]
     return done.stdout + done.stderr
 

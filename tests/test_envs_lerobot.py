@@ -15,6 +15,7 @@ from pathlib import Path
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 import pytest
+from subprocesses import run_command
 
 from lerobot_opfa.cli import main
 from lerobot_opfa.hands.registry import load_hand
@@ -25,7 +26,7 @@ SUBPROCESS_ENV = {**os.environ, "MUJOCO_GL": "egl", "HF_HUB_OFFLINE": "1"}
 
 def _run(exe: str, *args: str) -> subprocess.CompletedProcess:
     path = shutil.which(exe, path=str(Path(sys.executable).parent)) or shutil.which(exe)
-    return subprocess.run([path, *args], capture_output=True, text=True, timeout=600, env=SUBPROCESS_ENV)
+    return run_command([path, *args], timeout=600, env=SUBPROCESS_ENV)
 
 
 @pytest.fixture(scope="module")

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from subprocesses import run_command
 
 from lerobot_opfa.galr.data import hand_counts, make_batch, masked_rmse, sample_batch
 from lerobot_opfa.galr.evaluate import evaluate
@@ -243,7 +244,7 @@ def test_resume_continues_from_the_same_step(tmp_path):
 
 def _cli(*args: str) -> subprocess.CompletedProcess:
     exe = Path(sys.executable).parent / "lerobot-opfa"
-    return subprocess.run([str(exe), *args], capture_output=True, text=True, timeout=600)
+    return run_command([str(exe), *args], text=True, timeout=600)
 
 
 def test_cli_pretrain_eval_embed_decode(tmp_path):

@@ -17,6 +17,7 @@ import pyarrow.parquet as pq
 import pytest
 import torch
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
+from subprocesses import run_command
 
 from lerobot_opfa import cli
 from lerobot_opfa.datasets import merge as merge_module
@@ -143,13 +144,13 @@ def test_sigint_during_a_merge_leaves_nothing_and_a_rerun_succeeds(datasets, tmp
     _, err = process.communicate(timeout=120)
     assert process.returncode == 130 and err.strip().endswith("interrupted"), err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["slow.py"]
-    done = subprocess.run([*command, str(tmp_path / "m")], env=ENV, capture_output=True, text=True)
+    done = run_command([*command, str(tmp_path / "m")], timeout=300, env=ENV)
     assert done.returncode == 0, done.stderr
     assert _leftovers(tmp_path) == []
 
 
 def test_a_rerun_cleans_what_a_killed_or_older_writer_left_and_puts_back_a_moved_output(tmp_path):
-    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True)
+    dead = run_command([sys.executable, "-c", "import os; print(os.getpid())"], timeout=60)
     pid = int(dead.stdout)
     for name in (".out.partial-1a2b3c4d", f".out.partial-{pid}-1a2b3c4d"):  # an older version's, a dead pid
         (tmp_path / name / "meta").mkdir(parents=True)
@@ -280,9 +281,9 @@ def test_bad_numeric_flags_are_one_line(capsys, argv, words):
 
 
 def test_one_line_of_video_backend_warning_at_most():
-    result = subprocess.run(
+    result = run_command(
         [sys.executable, "-m", "lerobot_opfa.cli", "train", "--policy.type=opfa", "--policy.horizon=10",
-         "--dataset.repo_id=local/none"], env=ENV, capture_output=True, text=True,
+         "--dataset.repo_id=local/none"], env=ENV, timeout=300,
     )  # fmt: skip
     lines = result.stderr.strip().splitlines()
     assert result.returncode == 2 and lines[-1].startswith("error: `horizon`")

@@ -3,7 +3,6 @@ before the hand, observation-only entries; joint maps applied on the way in and 
 
 from __future__ import annotations
 
-import subprocess
 import sys
 from pathlib import Path
 
@@ -16,6 +15,7 @@ from lerobot.policies.factory import make_pre_post_processors
 from lerobot.processor import TransitionKey, create_transition
 from lerobot.processor.converters import batch_to_transition
 from lerobot.utils.constants import ACTION, OBS_STATE
+from subprocesses import run_command
 from test_policy import ENV, batch_of, make_policy, save_galr
 
 from lerobot_opfa import cli
@@ -268,7 +268,7 @@ def test_lerobot_train_on_a_robots_dataset_through_a_map_then_the_checkpoint_dri
         "--steps=2", "--batch_size=4", "--save_freq=2", "--log_freq=1", "--num_workers=0",
         f"--output_dir={out}", "--wandb.enable=false",
     ]  # fmt: skip
-    result = subprocess.run(command, env=ENV, capture_output=True, text=True, timeout=600)
+    result = run_command(command, env=ENV, timeout=600)
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     (rigs / "arm_inspire_map.yaml").rename(tmp_path / "moved.yaml")  # deployment needs no map file
     try:

@@ -4,9 +4,10 @@ nothing of the learner."""
 from __future__ import annotations
 
 import ast
-import subprocess
 import sys
 from pathlib import Path
+
+from subprocesses import run_command
 
 SRC = Path(__file__).parents[1] / "src" / "lerobot_opfa"
 
@@ -16,7 +17,7 @@ def test_hands_and_galr_import_without_lerobot_or_gymnasium():
         "import lerobot_opfa.hands, lerobot_opfa.galr.model, sys; "
         "print([m for m in sys.modules if m.startswith(('lerobot.', 'gymnasium'))])"
     )
-    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    result = run_command([sys.executable, "-c", code], timeout=120)
     assert result.returncode == 0, result.stderr
     assert result.stdout.strip() == "[]"
 
@@ -45,6 +46,6 @@ def test_the_plugin_module_registers_the_policy_env_and_processor_steps():
         "all(n in ProcessorStepRegistry.list() for n in ('opfa_encode_joints', 'opfa_decode_joints', "
         "'opfa_normalize')))"
     )
-    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    result = run_command([sys.executable, "-c", code], timeout=300)
     assert result.returncode == 0, result.stderr[-2000:]
     assert result.stdout.split() == ["OpfaConfig", "OpfaEnvConfig", "True"]

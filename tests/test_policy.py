@@ -7,7 +7,6 @@ import json
 import logging
 import os
 import shutil
-import subprocess
 import sys
 from pathlib import Path
 from unittest.mock import patch
@@ -25,6 +24,7 @@ from lerobot.processor.converters import batch_to_transition, transition_to_batc
 from lerobot.utils.constants import OBS_ENV_STATE
 from lerobot.utils.feature_utils import dataset_to_policy_features
 from safetensors.torch import load_file, save_file
+from subprocesses import run_command
 
 from lerobot_opfa import cli
 from lerobot_opfa.datasets import merge as merge_module
@@ -741,7 +741,7 @@ def test_lerobot_train_then_eval_every_hand(data, tmp_path, monkeypatch):
         "--steps=3", "--batch_size=4", "--save_freq=3", "--log_freq=1", "--num_workers=0",
         f"--output_dir={out}", "--wandb.enable=false",
     ]  # fmt: skip
-    result = subprocess.run(command, env=ENV, capture_output=True, text=True, timeout=600)
+    result = run_command(command, env=ENV, timeout=600)
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     checkpoint = out / "checkpoints" / "last" / "pretrained_model"
     policy = OpfaPolicy.from_pretrained(checkpoint)
@@ -749,7 +749,7 @@ def test_lerobot_train_then_eval_every_hand(data, tmp_path, monkeypatch):
     assert policy.config.galr_path == str((data / "galr").resolve())
     finetune = [command[0], f"--policy.path={checkpoint}", *command[2:5], "--policy.push_to_hub=false"]
     finetune += ["--steps=1", "--batch_size=4", "--num_workers=0", f"--output_dir={tmp_path / 'finetune'}"]
-    result = subprocess.run(finetune, env=ENV, capture_output=True, text=True, timeout=600)
+    result = run_command(finetune, env=ENV, timeout=600)
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     monkeypatch.setenv("MUJOCO_GL", "egl")
     for hand in HANDS:

@@ -4,7 +4,10 @@ outside this repository."""
 from __future__ import annotations
 
 import re
+import sys
 from pathlib import Path
+
+from subprocesses import run_command
 
 README = (Path(__file__).parents[1] / "README.md").read_text()
 
@@ -28,3 +31,18 @@ def test_readme_says_how_to_install_and_run_it_anywhere():
         "(B, dof)",  # what `galr embed` takes
     ):
         assert needed in README, needed
+
+
+def test_the_tests_run_on_the_python_the_readme_and_makefile_name():
+    """The venv the tests run in was made with the Python `make which-python` picks, the one the README
+    names."""
+    root = Path(__file__).parents[1]
+    picked = run_command(["make", "-s", "-C", str(root), "which-python"], timeout=60)
+    assert picked.returncode == 0, picked.stderr
+    version = run_command(
+        [picked.stdout.strip(), "-c", "import sys; print(sys.version_info[:2])"], timeout=60
+    )
+    assert version.stdout.strip() == str(sys.version_info[:2])
+    order = re.search(r"among (.*?) on\nPATH", README).group(1)
+    makefile = (root / "Makefile").read_text()
+    assert re.findall(r"`(\w[\w.]*)`", order) == re.search(r"for c in (.*?); do", makefile).group(1).split()

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 import torch
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
+from subprocesses import run_command
 
 from lerobot_opfa.envs.config import OpfaEnvConfig
 from lerobot_opfa.experiments.failures import image_goal_scatter, object_following
@@ -24,7 +25,7 @@ ENV = {**os.environ, "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1", "MUJOCO_GL":
 
 def lerobot(script: str, *flags: str, timeout: float = 600) -> subprocess.CompletedProcess:
     command = [sys.executable, "-m", f"lerobot.scripts.{script}", *flags]
-    return subprocess.run(command, env=ENV, capture_output=True, text=True, timeout=timeout)
+    return run_command(command, env=ENV, timeout=timeout)
 
 
 def rig_flags(calibration: Path, hand: str = "umi", *extra: str) -> list[str]:
@@ -93,7 +94,7 @@ def test_an_rgb_policy_trains_on_the_rigs_colour_camera_and_acts_in_lerobot_eval
                *(f"--policy.{k}={v}" for k, v in policy.items()), "--dataset.repo_id=local/rig",
                f"--dataset.root={recorded / 'rig'}", "--steps=2", "--batch_size=2", "--save_freq=2",
                f"--output_dir={tmp_path / 'train'}", "--wandb.enable=false"]  # fmt: skip
-    done = subprocess.run(command, env=ENV, capture_output=True, text=True, timeout=600)
+    done = run_command(command, env=ENV, timeout=600)
     assert done.returncode == 0, done.stderr[-3000:]
     checkpoint = tmp_path / "train" / "checkpoints" / "last" / "pretrained_model"
     config = json.loads((checkpoint / "config.json").read_text())

@@ -17,6 +17,7 @@ import torch
 from lerobot.datasets.dataset_metadata import LeRobotDatasetMetadata
 from lerobot.datasets.factory import resolve_delta_timestamps
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
+from subprocesses import run_command
 
 from lerobot_opfa import cli
 from lerobot_opfa.datasets.in_memory import InMemoryDataset
@@ -126,7 +127,7 @@ def test_image_features_are_served_as_lerobot_serves_them_and_text_features_refu
 
 def _run(exe: str, *args: str) -> subprocess.CompletedProcess:
     command = [str(Path(sys.executable).parent / exe), *args]
-    return subprocess.run(command, env=ENV, capture_output=True, text=True, timeout=600)
+    return run_command(command, env=ENV, timeout=600)
 
 
 def _train(exe: str, *args: str) -> str:

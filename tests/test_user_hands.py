@@ -8,7 +8,6 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import subprocess
 import sys
 from pathlib import Path
 
@@ -19,6 +18,7 @@ import numpy as np
 import pytest
 import torch
 import yaml
+from subprocesses import run_command
 
 from lerobot_opfa.cli import main
 from lerobot_opfa.datasets.layout import read_layout
@@ -137,9 +137,7 @@ def user_spec(request, user_shadow_spec, user_allegro_spec) -> Path:
 
 
 def _lerobot(exe: str, *args: str) -> None:
-    result = subprocess.run(
-        [str(Path(sys.executable).parent / exe), *args], env=ENV, capture_output=True, text=True, timeout=600
-    )
+    result = run_command([str(Path(sys.executable).parent / exe), *args], env=ENV, text=True, timeout=600)
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
 
 

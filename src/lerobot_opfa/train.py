@@ -115,11 +115,13 @@ def _in_memory(make_train_eval_datasets):
     import torch
 
     from lerobot_opfa.datasets.in_memory import InMemoryDataset
+    from lerobot_opfa.process_group import hold_until_exit
 
     @functools.wraps(make_train_eval_datasets)
     def make(cfg):
         if cfg.dataset.streaming:
             raise ValueError("the in-memory fast path reads whole datasets, not streams; use lerobot-train")
+        hold_until_exit()  # the accelerator (and its process group) exists by now; see process_group.py
         dataset, eval_dataset = make_train_eval_datasets(cfg)
         start = time.perf_counter()
         dataset = InMemoryDataset(dataset)

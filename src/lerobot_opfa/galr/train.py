@@ -19,6 +19,7 @@ from lerobot_opfa.galr import checkpoints
 from lerobot_opfa.galr.data import HandBatch, make_batch, masked_rmse, sample_batch
 from lerobot_opfa.galr.model import Galr, GalrConfig, hand_record
 from lerobot_opfa.hands.registry import builtin_hands, load_hand, load_spec
+from lerobot_opfa.process_group import hold_until_exit
 
 logger = logging.getLogger(__name__)
 CHECKPOINTS = "checkpoints"
@@ -138,6 +139,7 @@ def _latest_checkpoint(output_dir: Path) -> Path | None:
 def pretrain(config: PretrainConfig) -> Galr:
     output_dir = Path(config.output_dir)
     accelerator = Accelerator(log_with="wandb" if config.wandb else None)
+    hold_until_exit()
     checkpoint = _latest_checkpoint(output_dir) if config.resume else None
     if config.resume and checkpoint is None:
         raise FileNotFoundError(f"--resume: no checkpoint under {output_dir / CHECKPOINTS}")

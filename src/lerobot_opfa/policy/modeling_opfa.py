@@ -24,6 +24,7 @@ from lerobot_opfa.policy.diffusion import ConditionalUnet1d, Ddim
 from lerobot_opfa.policy.fast_sampling import FastSampler
 from lerobot_opfa.policy.image_encoder import ImageEncoder
 from lerobot_opfa.policy.processor_opfa import resolve_config
+from lerobot_opfa.process_group import hold_until_exit
 
 
 def loss_weights(config: OpfaConfig) -> Tensor:
@@ -56,6 +57,7 @@ class OpfaPolicy(PreTrainedPolicy):
         if not config.embodiment_joints or (config.space.uses_galr and config.latent_dim is None):
             raise ValueError("an opfa policy is built from a dataset (dataset_meta) or a trained checkpoint")
         self.config = config
+        hold_until_exit()  # a torchrun/accelerate rank of lerobot-train exits without hanging
         width = config.policy_width
         self.image_keys = tuple(config.image_keys)
         clouds = (OBS_POINTCLOUD,) if config.uses_pointcloud else ()
