@@ -4,6 +4,7 @@ at all (an interrupted merge leaves nothing behind under the output path)."""
 from __future__ import annotations
 
 import contextlib
+import errno
 import glob
 import json
 import os
@@ -16,9 +17,19 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
+from lerobot.utils.constants import OBS_STATE
 
 if TYPE_CHECKING:
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+
+OPFA_META_FILE = "meta/opfa.json"
+"""What lerobot-opfa records about a dataset: `hands` (user hands' specs: name -> {spec, sha256}); for a
+merged dataset also its inputs and, with cached latents, the GaLR that computed them (`galr`, as given to
+the merge, and `galr_fingerprint`); for `dataset clouds` output the depth `cameras`."""
+OPFA_INFO_KEY = "opfa"
+"""`meta/info.json` keeps a copy of that record in `features["observation.state"]["info"]["opfa"]`: LeRobot's
+own tools (`lerobot-edit-dataset`) rewrite `meta/` keeping only the features' entries of info.json."""
 
 
 def read_json(path: Path | str) -> Any:
@@ -79,7 +90,7 @@ def read_columns(root: Path | str, columns: list[str]) -> dict[str, np.ndarray]:
 def atomic_directory(output: Path | str, overwrite: bool = False) -> Iterator[Path]:
     """Yields a fresh sibling temp path to write into; on success it replaces `output` in one rename,
     on any error (an interrupt included) it is deleted. What a killed writer left beside `output` is
-    cleaned first (`clean_stale_siblings`)."""
+    cleaned first (`clean_stale_siblings`). A full disk is a one-line error."""
     output = Path(output).resolve()
     clean_stale_siblings(output)
     if output.exists() and not overwrite:
@@ -89,16 +100,42 @@ def atomic_directory(output: Path | str, overwrite: bool = False) -> Iterator[Pa
     partial = output.parent / f".{output.name}{PARTIAL}{tag}"
     try:
         yield partial
-        if output.exists():
-            old = output.parent / f".{output.name}{OLD}{tag}"
-            output.rename(old)
-            partial.rename(output)
-            shutil.rmtree(old)
-        else:
-            partial.rename(output)
+        _publish(partial, output, overwrite, output.parent / f".{output.name}{OLD}{tag}")
+    except OSError as err:
+        if err.errno in (errno.ENOSPC, errno.EDQUOT) or os.strerror(errno.ENOSPC) in str(err):
+            raise RuntimeError(
+                f"{output} was not written: the disk is full ({os.strerror(errno.ENOSPC)}); nothing was left "
+                "behind: free some space and run again"
+            ) from None
+        raise
     finally:
         if partial.exists():
             shutil.rmtree(partial, ignore_errors=True)
+
+
+def _publish(partial: Path, output: Path, overwrite: bool, old: Path) -> None:
+    """Renames `partial` to `output`. Without `overwrite` an `output` that appeared while it was written
+    (another run given the same output) is kept, not replaced: renaming a folder onto a non-empty one
+    fails, so two runs cannot both succeed."""
+    if overwrite and output.exists():
+        output.rename(old)
+    try:
+        if not overwrite and output.exists():
+            raise FileExistsError
+        partial.rename(output)
+    except OSError as err:
+        if not isinstance(err, FileExistsError) and err.errno not in (
+            errno.EEXIST,
+            errno.ENOTEMPTY,
+            errno.ENOTDIR,
+        ):
+            raise
+        raise FileExistsError(
+            f"{output} appeared while this run was writing it (another run given the same output?); it is "
+            "left as it is and this run's result is discarded: choose another output, or pass --overwrite"
+        ) from None
+    if old.exists():
+        shutil.rmtree(old)
 
 
 PARTIAL, OLD = ".partial-", ".old-"
@@ -137,9 +174,8 @@ def _writer_alive(tag: str) -> bool:
 @contextlib.contextmanager
 def new_dataset(output: Path | str, overwrite: bool = False, **create: Any) -> Iterator[LeRobotDataset]:
     """A LeRobotDataset (`LeRobotDataset.create(**create)`) written under a partial folder that becomes
-    `output` when the block succeeds. On failure the dataset's writers are closed before the folder is
-    deleted: LeRobot's metadata flushes its episode buffer when it is collected, and would otherwise
-    recreate the deleted folder afterwards."""
+    `output` when the block succeeds, with a copy of the record the block wrote (`keep_record`). On failure
+    the dataset's writers are closed before the folder is deleted (`_close_writers`)."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     output = Path(output)
@@ -154,6 +190,49 @@ def new_dataset(output: Path | str, overwrite: bool = False, **create: Any) -> I
             yield dataset
             dataset.finalize()
         except BaseException:
-            with contextlib.suppress(Exception):
-                dataset.finalize()
+            _close_writers(dataset)
             raise
+        keep_record(partial)
+
+
+def _close_writers(dataset: LeRobotDataset) -> None:
+    """Closes a failed dataset's writers, dropping what they could not write. A write that failed (a full
+    disk) fails again in `finalize`, which then never reaches the metadata: its buffered episodes would be
+    flushed when LeRobot collects the dataset, recreating the folder deleted meanwhile. LeRobot offers no
+    call that drops them, hence its private buffer."""
+    try:
+        dataset.finalize()
+    except Exception:
+        if dataset.writer is not None:
+            with contextlib.suppress(Exception):
+                dataset.writer.stop_image_writer()
+        dataset.meta._metadata_buffer.clear()
+        with contextlib.suppress(Exception):
+            dataset.meta.finalize()
+
+
+def keep_record(root: Path) -> None:
+    """Copies the dataset's `OPFA_META_FILE` into its `meta/info.json` (`OPFA_INFO_KEY`), or removes a copy
+    its features inherited from an input when it has no record."""
+    path = root / "meta" / "info.json"
+    info = read_json(path)
+    state = info["features"].get(OBS_STATE)
+    if state is None:
+        return
+    extra = {k: v for k, v in (state.get("info") or {}).items() if k != OPFA_INFO_KEY}
+    if (root / OPFA_META_FILE).is_file():
+        extra[OPFA_INFO_KEY] = read_json(root / OPFA_META_FILE)
+    if extra:
+        state["info"] = extra
+    else:
+        state.pop("info", None)
+    path.write_text(json.dumps(info, indent=4, ensure_ascii=False))
+
+
+def embedded_record(root: Path | str) -> dict | None:
+    """The copy of a dataset's record its `meta/info.json` keeps (`keep_record`), if any."""
+    path = Path(root) / "meta" / "info.json"
+    if not path.is_file():
+        return None
+    state = read_json(path).get("features", {}).get(OBS_STATE) or {}
+    return (state.get("info") or {}).get(OPFA_INFO_KEY)

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import logging
-import shutil
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +16,13 @@ from lerobot.utils.constants import ACTION, OBS_STATE
 from tqdm import tqdm
 
 from lerobot_opfa.datasets.io import check_dataset_folder, check_outside_inputs, new_dataset, read_columns
-from lerobot_opfa.datasets.layout import LATENT_ROBOT_TYPE, OPFA_META_FILE, latent_names, read_layout
+from lerobot_opfa.datasets.layout import (
+    LATENT_ROBOT_TYPE,
+    OPFA_META_FILE,
+    latent_names,
+    opfa_record,
+    read_layout,
+)
 from lerobot_opfa.datasets.merge import BOOKKEEPING, NUMERIC
 from lerobot_opfa.hands.universal import UNIVERSAL_JOINT_NAMES
 
@@ -67,7 +72,6 @@ def latent_dataset(source: Path | str, output: Path | str, overwrite: bool = Fal
                 dataset.add_frame(frame)
             dataset.save_episode()
         dataset.finalize()
-        shutil.copy(source / OPFA_META_FILE, partial / OPFA_META_FILE)
-        info = json.loads((partial / OPFA_META_FILE).read_text())
-        (partial / OPFA_META_FILE).write_text(json.dumps({**info, "latent_only": True}, indent=2))
+        record = {**opfa_record(source), "latent_only": True}
+        (partial / OPFA_META_FILE).write_text(json.dumps(record, indent=2))
     return Path(output)

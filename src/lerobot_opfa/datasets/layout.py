@@ -7,7 +7,7 @@ Two layouts are understood, both read from `meta/info.json` feature names:
   cached GaLR latents `z0..`; `observation.embodiment` names the hands its ids index.
 
 A dataset of a user's hand records its spec (path and hash) in `meta/opfa.json`, so every later command finds
-the hand from the dataset alone.
+the hand from the dataset alone; `meta/info.json` keeps a copy, which LeRobot's editing tools keep too.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from pathlib import Path
 
 from lerobot.utils.constants import ACTION, OBS_STATE
 
-from lerobot_opfa.datasets.io import read_json
+from lerobot_opfa.datasets.io import OPFA_META_FILE, embedded_record, read_json
 from lerobot_opfa.datasets.joint_map import JointMap, closest_hands, joint_of, map_to_write
 from lerobot_opfa.features import OBS_EMBODIMENT
 from lerobot_opfa.hands.registry import builtin_hands, hand_ref, load_spec
@@ -27,11 +27,6 @@ from lerobot_opfa.hands.universal import UNIVERSAL_JOINT_NAMES
 LATENT_PREFIX = "z"
 LATENT_ROBOT_TYPE = "opfa_latent"
 """The `robot_type` of a `dataset latent` output: state and action are body + z, not joints."""
-
-OPFA_META_FILE = "meta/opfa.json"
-"""What lerobot-opfa records about a dataset: `hands` (user hands' specs: name -> {spec, sha256}); for a
-merged dataset also its inputs and, with cached latents, the GaLR that computed them (`galr`, as given to
-the merge, and `galr_fingerprint`)."""
 
 
 class JointNameError(ValueError):
@@ -107,9 +102,27 @@ def identify_hand(names: list[str], robot_type: str | None, hands: list[str] | N
 
 
 def opfa_record(root: Path | str | None) -> dict:
-    """What lerobot-opfa recorded about a dataset (empty for a dataset it did not write)."""
-    meta = Path(root) / OPFA_META_FILE if root is not None else None
-    return read_json(meta) if meta is not None and meta.is_file() else {}
+    """What lerobot-opfa recorded about a dataset: `meta/opfa.json`, or the copy `meta/info.json` keeps
+    (all that is left once LeRobot's editing tools rewrote `meta/`); empty for a dataset it did not write."""
+    if root is None:
+        return {}
+    meta = Path(root) / OPFA_META_FILE
+    return read_json(meta) if meta.is_file() else embedded_record(root) or {}
+
+
+def lost_record(features: dict, root: Path | str | None) -> str | None:
+    """Why a dataset cannot be read without the record it lost, or None: a merged dataset's cached latents
+    are of a GaLR only the record names (a dataset merged before `meta/info.json` kept a copy of it, then
+    edited with LeRobot's tools, which drop `meta/opfa.json`)."""
+    names = feature_names(features, OBS_STATE) if OBS_STATE in features else []
+    cached = OBS_EMBODIMENT in features and latent_names(1)[0] in names
+    if not cached or root is None or opfa_record(root).get("galr_fingerprint"):
+        return None
+    return (
+        f"{root} holds latents cached by `lerobot-opfa dataset merge --galr`, but not its {OPFA_META_FILE}, "
+        "which names the GaLR that cached them (LeRobot's editing tools drop it from datasets merged by an "
+        "older lerobot-opfa): merge the inputs again (and edit that merge)"
+    )
 
 
 def hand_entry(spec: HandSpec) -> dict[str, str]:
@@ -146,6 +159,9 @@ def read_layout(
     """The layout of a dataset from its features and what `meta/opfa.json` under `root` records. `hands`:
     the hands (names or spec paths) it may hold besides the built-ins and the ones it records; `joint_map`:
     how a native dataset holds its hand, when its entries are not named after the spec's joints."""
+    lost = lost_record(features, root)
+    if lost:
+        raise ValueError(lost)
     record = opfa_record(root)
     # The hands the dataset records come first: a user's hand named like a built-in is the user's.
     candidates = [*recorded_hands(root, record).values(), *_hand_candidates(hands)]
