@@ -19,6 +19,16 @@ WORKSPACE_LOW = np.array([-0.45, -0.40, 0.004])
 WORKSPACE_HIGH = np.array([0.45, 0.40, 0.60])
 VOXEL = 0.004
 PREDRAW = 3  # before the voxel grid, keep at most this many points per output point (bounds its cost)
+MAX_FIELD_OF_VIEW = 170.0
+"""Degrees, across either image axis: a wider view is a focal length not given in pixels (in millimetres,
+fx = 1.93 spreads a 128-pixel row over 176 degrees)."""
+MIN_VOXELS = 32
+"""Occupied workspace voxels a dataset's first frame must give: fewer (a wrong depth unit, a pose that looks
+past the table) is not a scene the policy can read."""
+MIN_INSIDE_SHARE = 0.5
+"""A camera whose points above the workspace floor land mostly outside the workspace, where its inverse pose
+lands most of them inside, was given world-to-camera (the simulated rig's cameras: 100 % inside; inverted,
+19-40 %)."""
 
 
 @dataclass(frozen=True)
@@ -32,13 +42,16 @@ class Workspace:
 
 @dataclass(frozen=True)
 class PinholeCamera:
-    """A depth camera: OpenCV intrinsics (pixel (u, v) has centre (u, v); x right, y down, z forward) and
-    the camera-to-world pose (4x4, metres)."""
+    """A depth camera: OpenCV intrinsics (pixel (u, v) has centre (u, v); x right, y down, z forward) of
+    images of `width` x `height` pixels, the only size they hold for, and the camera-to-world pose (4x4,
+    metres)."""
 
     fx: float
     fy: float
     cx: float
     cy: float
+    width: int
+    height: int
     camera_to_world: tuple[tuple[float, ...], ...]
 
     def rays(self, height: int, width: int) -> np.ndarray:
@@ -111,8 +124,9 @@ class DepthRig:
 
     @classmethod
     def load(cls, path: Path | str) -> DepthRig:
-        """A calibration YAML: `cameras: {KEY: {fx, fy, cx, cy, camera_to_world: 4x4}}`, optional
-        `depth_unit` (mm) and `workspace: {low, high, voxel}`."""
+        """A calibration YAML: `cameras: {KEY: {fx, fy, cx, cy, width, height, camera_to_world: 4x4}}`,
+        optional `depth_unit` (mm) and `workspace: {low, high, voxel}`. Each camera is checked for meaning
+        (`_camera`); KEY is the dataset's feature key, `observation.images.<name>` (`check_keys`)."""
         try:
             raw = read_yaml(path, "camera calibration")
         except YamlFileError as err:
@@ -123,7 +137,8 @@ class DepthRig:
     def from_dict(cls, raw: Any, source: str = "<dict>") -> DepthRig:
         if not isinstance(raw, dict) or not isinstance(raw.get("cameras"), dict) or not raw["cameras"]:
             raise DepthRigError(
-                f"{source}: expected a mapping with `cameras: {{KEY: {{fx, fy, cx, cy, camera_to_world}}}}`"
+                f"{source}: expected a mapping with "
+                "`cameras: {KEY: {fx, fy, cx, cy, width, height, camera_to_world}}`"
             )
         unknown = sorted(set(raw) - {"cameras", "depth_unit", "workspace"})
         if unknown:
@@ -154,12 +169,67 @@ class DepthRig:
                           "voxel": self.workspace.voxel},
         }  # fmt: skip
 
+    def check_keys(self, features: dict[str, Any], where: str) -> None:
+        """Every calibrated camera is a feature of `where`. A key is the full feature key: a short camera name
+        that happens to match one feature is refused too, as the checkpoint's step meets the robot's
+        observations under the full key."""
+        missing = [k for k in self.cameras if k not in features]
+        if missing:
+            cameras = [k for k, f in features.items() if f.get("dtype") in ("video", "image")]
+            near = {k: [c for c in cameras if c.split(".")[-1] == k.split(".")[-1]] for k in missing}
+            hint = "; ".join(f"'{k}' is '{v[0]}'?" for k, v in near.items() if len(v) == 1)
+            raise DepthRigError(
+                f"{self.source} calibrates {missing}, which {where} does not have: key each camera by its "
+                f"feature key, one of {cameras or 'its cameras (it has none)'}"
+                + (f" ({hint})" if hint else "")
+            )
+
+    def check_frame(self, depths: dict[str, np.ndarray]) -> None:
+        """A dataset's first frame of every camera ((H, W) depth in `depth_unit`) shows the workspace: enough
+        occupied voxels, and no camera whose inverse pose explains its frame far better (a pose given
+        world-to-camera). Run before any work: a wrong calibration would otherwise train a policy on clouds
+        of the wrong place."""
+        scale = DEPTH_UNITS[self.depth_unit]
+        for key, camera in self.cameras.items():
+            depth = self._checked(key, camera, depths[key]) * scale
+            pose = np.asarray(camera.camera_to_world)
+            given, inverse = (self._inside_share(depth, camera, p) for p in (pose, np.linalg.inv(pose)))
+            if given < MIN_INSIDE_SHARE <= inverse and inverse >= 2 * given:
+                raise DepthRigError(
+                    f"{self.source}: camera '{key}' puts {given:.0%} of its points above the workspace floor "
+                    f"inside the workspace, its inverse pose {inverse:.0%}: camera_to_world looks like a "
+                    "world-to-camera pose; give its inverse"
+                )
+        points = crop(self.points(depths), self.workspace)
+        voxels = len(np.unique(np.floor((points - self.workspace.low) / self.workspace.voxel), axis=0))
+        if voxels < MIN_VOXELS:
+            raise self._blind(f"{voxels} occupied voxels (fewer than {MIN_VOXELS})" if voxels else "no point")
+
+    def _inside_share(self, depth: np.ndarray, camera: PinholeCamera, pose: np.ndarray) -> float:
+        """The share of a frame's points above the workspace floor that land in the workspace under `pose`."""
+        valid = depth.reshape(-1) > 0
+        points = (_rays(camera, *depth.shape)[valid] * depth.reshape(-1)[valid, None]) @ pose[:3, :3].T
+        points += pose[:3, 3]
+        above = points[points[:, 2] > self.workspace.low[2]]
+        return len(crop(above, self.workspace)) / max(len(above), 1)
+
+    def _checked(self, key: str, camera: PinholeCamera, depth: Any) -> np.ndarray:
+        """A frame as float64, refused when its size is not the one the intrinsics are for."""
+        depth = np.asarray(depth, dtype=np.float64)
+        if depth.shape != (camera.height, camera.width):
+            raise DepthRigError(
+                f"camera '{key}' gives depth frames of {_size(depth.shape)} (width x height), but its "
+                f"calibration in {self.source} is for {camera.width}x{camera.height}: the intrinsics hold "
+                "for that size only; calibrate it at the size it records (or record at the calibrated size)"
+            )
+        return depth
+
     def points(self, depths: dict[str, np.ndarray]) -> np.ndarray:
         """World points (P, 3) of one frame of every camera ((H, W) depth in `depth_unit`), uncropped."""
         scale, floor = DEPTH_UNITS[self.depth_unit], self.workspace.low[2]
         clouds = []
         for key, camera in self.cameras.items():
-            depth = np.asarray(depths[key], dtype=np.float64) * scale
+            depth = self._checked(key, camera, depths[key]) * scale
             clouds.append(back_project(depth, camera, _rays(camera, *depth.shape), floor))
         return np.concatenate(clouds)
 
@@ -168,12 +238,15 @@ class DepthRig:
         error (a wrong pose, unit or crop would otherwise give the policy a cloud of zeros)."""
         points = crop(self.points(depths), self.workspace)
         if len(points) == 0:
-            raise DepthRigError(
-                f"the depth frames of {', '.join(self.cameras)} put no point in the workspace "
-                f"{list(self.workspace.low)}..{list(self.workspace.high)} (check each camera's "
-                f"camera_to_world, the depth_unit '{self.depth_unit}' and the workspace in {self.source})"
-            )
+            raise self._blind("no point")
         return downsample(points, n_points, rng, self.workspace)
+
+    def _blind(self, found: str) -> DepthRigError:
+        return DepthRigError(
+            f"the depth frames of {', '.join(self.cameras)} put {found} in the workspace "
+            f"{list(self.workspace.low)}..{list(self.workspace.high)} (check each camera's "
+            f"camera_to_world, the depth_unit '{self.depth_unit}' and the workspace in {self.source})"
+        )
 
 
 @functools.lru_cache(maxsize=16)
@@ -181,26 +254,64 @@ def _rays(camera: PinholeCamera, height: int, width: int) -> np.ndarray:
     return camera.rays(height, width)
 
 
+def _size(shape: tuple[int, ...]) -> str:
+    return f"{shape[-1]}x{shape[-2]}" if len(shape) >= 2 else str(shape)
+
+
 def _camera(key: str, raw: Any, source: str) -> PinholeCamera:
-    """One camera's entry: intrinsics and a rigid 4x4 camera-to-world pose."""
-    fields = ("fx", "fy", "cx", "cy", "camera_to_world")
+    """One camera's entry, checked for meaning: finite intrinsics in pixels of an image of the given size
+    (principal point inside it, a field of view below `MAX_FIELD_OF_VIEW`) and a rigid, right-handed
+    camera-to-world pose."""
+    where = f"{source}: camera '{key}'"
+    fields = ("fx", "fy", "cx", "cy", "width", "height", "camera_to_world")
+    if isinstance(raw, dict) and sorted(raw) == sorted(set(fields) - {"width", "height"}):
+        raise DepthRigError(
+            f"{where} does not say the image size its intrinsics are for: add `width` and `height` (pixels "
+            "of the depth frames it was calibrated on); frames of another size are refused"
+        )
     if not isinstance(raw, dict) or sorted(raw) != sorted(fields):
         given = sorted(raw) if isinstance(raw, dict) else type(raw).__name__
-        raise DepthRigError(f"{source}: camera '{key}' needs exactly {list(fields)}, got {given}")
+        raise DepthRigError(f"{where} needs exactly {list(fields)}, got {given}")
+    intrinsics = {}
+    for name in fields[:4]:
+        value = raw[name]
+        if isinstance(value, bool) or not isinstance(value, int | float) or not np.isfinite(value):
+            raise DepthRigError(f"{where} {name} is {value!r}: intrinsics are finite numbers (pixels)")
+        intrinsics[name] = float(value)
+    fx, fy, cx, cy = intrinsics.values()
+    width, height = raw["width"], raw["height"]
+    if any(isinstance(n, bool) or not isinstance(n, int) or n <= 0 for n in (width, height)):
+        raise DepthRigError(
+            f"{where} width and height must be positive whole pixels, got {width!r}, {height!r}"
+        )
     try:
         pose = np.asarray(raw["camera_to_world"], dtype=np.float64)
-        fx, fy, cx, cy = (float(raw[f]) for f in fields[:4])
     except (TypeError, ValueError):
-        raise DepthRigError(f"{source}: camera '{key}' has non-numeric intrinsics or pose") from None
-    rigid = (
-        pose.shape == (4, 4)
-        and np.allclose(pose[3], [0, 0, 0, 1])
-        and np.allclose(pose[:3, :3] @ pose[:3, :3].T, np.eye(3), atol=1e-4)
-    )
-    if not rigid:
+        raise DepthRigError(f"{where} camera_to_world must be a 4x4 matrix of numbers") from None
+    if pose.shape != (4, 4) or not np.isfinite(pose).all():
+        raise DepthRigError(f"{where} camera_to_world must be a 4x4 matrix of finite numbers")
+    rotation = pose[:3, :3]
+    if not (np.allclose(pose[3], [0, 0, 0, 1]) and np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-4)):
+        raise DepthRigError(f"{where} camera_to_world must be a rigid 4x4 pose (rotation, translation)")
+    if np.linalg.det(rotation) < 0:
         raise DepthRigError(
-            f"{source}: camera '{key}' camera_to_world must be a rigid 4x4 pose (rotation, translation)"
+            f"{where} camera_to_world is mirrored (its rotation has determinant -1, a left-handed frame): "
+            "its columns are the camera's x (right), y (down) and z (forward) axes in the world; one is "
+            "flipped"
         )
     if fx <= 0 or fy <= 0:
-        raise DepthRigError(f"{source}: camera '{key}' needs positive fx and fy (pixels)")
-    return PinholeCamera(fx, fy, cx, cy, tuple(map(tuple, pose.tolist())))
+        raise DepthRigError(f"{where} needs positive fx and fy (pixels)")
+    if not (-0.5 <= cx <= width - 0.5 and -0.5 <= cy <= height - 0.5):
+        raise DepthRigError(
+            f"{where} principal point (cx, cy) = ({cx:g}, {cy:g}) lies outside its {width}x{height} image: "
+            "cx, cy are pixels of that image (about width / 2, height / 2)"
+        )
+    for axis, focal, centre, pixels in (("horizontal", fx, cx, width), ("vertical", fy, cy, height)):
+        view = np.degrees(np.arctan((centre + 0.5) / focal) + np.arctan((pixels - 0.5 - centre) / focal))
+        if view >= MAX_FIELD_OF_VIEW:
+            raise DepthRigError(
+                f"{where} fx={fx:g}, fy={fy:g} give a {view:.0f} degree {axis} field of view over {pixels} "
+                f"pixels (at most {MAX_FIELD_OF_VIEW:.0f}): focal lengths must be in pixels (the focal "
+                "length in millimetres divided by the pixel pitch in millimetres), not millimetres"
+            )
+    return PinholeCamera(fx, fy, cx, cy, width, height, tuple(map(tuple, pose.tolist())))

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from lerobot.datasets.dataset_metadata import LeRobotDatasetMetadata
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from tqdm import tqdm
 
@@ -18,8 +19,12 @@ from lerobot_opfa.datasets.io import check_dataset_folder, check_outside_inputs,
 from lerobot_opfa.datasets.layout import OPFA_META_FILE, opfa_record
 from lerobot_opfa.datasets.merge import BOOKKEEPING, NUMERIC
 from lerobot_opfa.features import OBS_POINTCLOUD
-from lerobot_opfa.pointclouds import DepthRig
-from lerobot_opfa.policy.depth_step import DepthToPointCloudStep
+from lerobot_opfa.pointclouds import DepthRig, DepthRigError
+from lerobot_opfa.policy.depth_step import DepthToPointCloudStep, check_frame
+
+CLOUDS_OF_DEPTH = "opfa_clouds_of_depth"
+"""The point-cloud feature's `info` entry naming the depth cameras its clouds were made from: LeRobot's
+editing tools keep a feature's entry where they drop `meta/opfa.json`, so a lost calibration is noticed."""
 
 
 def cloud_dataset(
@@ -30,15 +35,18 @@ def cloud_dataset(
     check_dataset_folder(source)
     frames = LeRobotDataset(f"local/{source.name}", root=source)
     rig = DepthRig.load(cameras)
-    missing = [k for k in rig.cameras if k not in frames.meta.features]
-    if missing:
-        raise ValueError(f"{cameras} calibrates {missing}, which {source} does not have")
+    rig.check_keys(frames.meta.features, str(source))
+    try:
+        check_frame(rig, frames[0])
+    except DepthRigError as err:
+        raise DepthRigError(f"{source}, frame 0: {err}") from None
     step = DepthToPointCloudStep(rig=rig.to_dict(), n_points=n_points)
     numeric = [k for k, f in frames.meta.features.items() if f["dtype"] in NUMERIC and k not in BOOKKEEPING]
     features = {
         k: {**frames.meta.features[k], "shape": tuple(frames.meta.features[k]["shape"])} for k in numeric
     }
-    features[OBS_POINTCLOUD] = {"dtype": "float32", "shape": (3 * n_points,), "names": None}
+    features[OBS_POINTCLOUD] = {"dtype": "float32", "shape": (3 * n_points,), "names": None,
+                                "info": {CLOUDS_OF_DEPTH: list(rig.cameras)}}  # fmt: skip
     columns = read_columns(source, [*numeric, *BOOKKEEPING])
     position = {int(index): i for i, index in enumerate(frames.hf_dataset["index"])}
     tasks = {int(row.task_index): task for task, row in frames.meta.tasks.iterrows()}
@@ -67,6 +75,25 @@ def cloud_dataset(
 def recorded_cameras(root: Path | str | None) -> dict | None:
     """The calibration a dataset's clouds were made with (`cloud_dataset`), if they were."""
     return opfa_record(root).get("cameras")
+
+
+def recorded_rig(meta: LeRobotDatasetMetadata) -> DepthRig | None:
+    """The calibration a dataset's clouds were made with, or None for clouds made without one (the
+    simulator's, or a merge of clouds made with different calibrations, which warned). Clouds made from
+    depth frames by `cloud_dataset` whose record is gone (and the calibration with it) are refused: a policy
+    trained on them could not take a robot's depth frames, and would fail only at deployment."""
+    record = opfa_record(meta.root)
+    if record.get("cameras") is not None:
+        return DepthRig.from_dict(record["cameras"], f"{Path(meta.root) / OPFA_META_FILE} `cameras`")
+    depth = ((meta.features.get(OBS_POINTCLOUD) or {}).get("info") or {}).get(CLOUDS_OF_DEPTH)
+    if depth and not record:
+        raise DepthRigError(
+            f"{meta.root}: its clouds were made from the depth cameras {depth} (`lerobot-opfa dataset "
+            f"clouds`), but it lost its record ({OPFA_META_FILE}) and their calibration with it, as after an "
+            "edit by LeRobot's tools: put that file back from the dataset it was made from, or make the "
+            "clouds again from the edited depth dataset"
+        )
+    return None
 
 
 def _value(value, feature: dict) -> np.ndarray:

@@ -84,9 +84,8 @@ class DepthPointCloud:
             pose[:3, :3] = data.cam_xmat[cam].reshape(3, 3) @ np.diag([1.0, -1.0, -1.0])
             pose[:3, 3] = data.cam_xpos[cam]
             pose_rows = tuple(map(tuple, pose.tolist()))
-            cameras.append(
-                PinholeCamera(float(focal), float(focal), width / 2 - 0.5, height / 2 - 0.5, pose_rows)
-            )
+            principal = (width / 2 - 0.5, height / 2 - 0.5)
+            cameras.append(PinholeCamera(float(focal), float(focal), *principal, width, height, pose_rows))
         return cameras
 
     def depth_images(self, data: mujoco.MjData) -> list[np.ndarray]:

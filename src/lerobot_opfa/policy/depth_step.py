@@ -70,6 +70,11 @@ class DepthToPointCloudStep(ObservationProcessorStep):
         return {**features, PipelineFeatureType.OBSERVATION: observation}
 
 
+def check_frame(rig: DepthRig, frame: dict[str, Any]) -> None:
+    """A dataset's frame as LeRobot serves it, judged before any work (`DepthRig.check_frame`)."""
+    rig.check_frame({k: _frames(frame[k], k) for k in rig.cameras})
+
+
 def _frames(depth: Any, key: str) -> np.ndarray:
     """Depth frames (..., H, W) as float64: LeRobot gives (..., 1, H, W), a robot (H, W, 1) in its unit."""
     array = depth.detach().cpu().numpy() if isinstance(depth, torch.Tensor) else np.asarray(depth)

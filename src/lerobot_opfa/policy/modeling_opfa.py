@@ -121,12 +121,29 @@ class OpfaPolicy(PreTrainedPolicy):
     @classmethod
     def _load_as_safetensor(cls, model, model_file: str, map_location: str, strict: bool):
         """LeRobot loads weights non-strictly by default, which leaves a layer the file lacks at its random
-        initialisation without a word (a warning at most): here a file that does not fit is an error."""
+        initialisation without a word (a warning at most): here a file that does not fit is an error. So is
+        a damaged file, named (safetensors' own error names none)."""
+        from pathlib import Path
+
         from lerobot.utils.device_utils import resolve_safetensors_device
+        from safetensors import SafetensorError
         from safetensors.torch import load_model
 
         device = resolve_safetensors_device(map_location)
-        missing, unexpected = load_model(model, model_file, strict=False, device=device)
+        try:
+            missing, unexpected = load_model(model, model_file, strict=False, device=device)
+        except SafetensorError as err:
+            raise ValueError(
+                f"{model_file} is damaged (cut short or not a safetensors file: {err}); download the "
+                "checkpoint again, or save it again from where it was trained"
+            ) from None
+        goal = [k for k in missing if k.startswith("image_goal.")]
+        if goal and len(goal) == len(missing) and not unexpected:
+            raise ValueError(
+                f"{model_file} has no image_goal head: the policy was trained before `image_goal` existed "
+                f'(it only adds a training loss); add the line "image_goal": false to '
+                f"{Path(model_file).parent / 'config.json'}, or pass --policy.image_goal=false"
+            )
         if missing or unexpected:
             raise ValueError(
                 f"{model_file} does not fit this opfa policy (weights missing from the file: "
@@ -199,6 +216,8 @@ class OpfaPolicy(PreTrainedPolicy):
             batch = {k: torch.stack(list(self._queues[k]), dim=1) for k in self.observation_keys} | {
                 OBS_EMBODIMENT: self._queues[OBS_EMBODIMENT][-1]
             }
+        else:
+            self.check_observation(batch)
         cond = self.encode_observation(batch)
         head = batch_embodiments(batch[OBS_EMBODIMENT])
         b = len(cond)
@@ -220,11 +239,31 @@ class OpfaPolicy(PreTrainedPolicy):
 
         return self.ddim.sample(denoise, noise)
 
+    def check_observation(self, batch: dict[str, Tensor]) -> None:
+        """Every entry the policy reads is there, each colour camera at the size the policy was trained on
+        (its input features): a larger picture would be centre-cropped to another part of the view at
+        another scale without a word, and resizing cannot promise the same view."""
+        missing = [k for k in self.observation_keys if k not in batch]
+        if missing:
+            raise ValueError(
+                f"the observation has no {missing} (it has {', '.join(sorted(batch)) or 'nothing'}): this "
+                "policy reads what it was trained on; give the robot or env those cameras, under those names"
+            )
+        for key in self.image_keys:
+            (height, width), given = self.config.input_features[key].shape[-2:], tuple(batch[key].shape[-2:])
+            if given != (height, width):
+                raise ValueError(
+                    f"{key}: this policy was trained on {width}x{height} pictures (width x height), this one "
+                    f"is {given[1]}x{given[0]}: give the camera at {width}x{height} (another size shows the "
+                    "policy another part of the view at another scale)"
+                )
+
     @torch.inference_mode()
     def select_action(self, batch: dict[str, Tensor], noise: Tensor | None = None) -> Tensor:
         """One action per call; a new chunk is sampled every `n_action_steps` calls (as in LeRobot's
         diffusion policy: observations n-o+1..n condition actions n..n+a-1)."""
         batch = {k: v for k, v in batch.items() if k != ACTION}
+        self.check_observation(batch)
         self._queues = populate_queues(self._queues, batch)
         if not self._queues[ACTION]:
             self._queues[ACTION].extend(self.predict_action_chunk({}, noise=noise).transpose(0, 1))

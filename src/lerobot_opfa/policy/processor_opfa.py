@@ -31,7 +31,7 @@ from lerobot.processor.factory import make_policy_processor_pipelines
 from lerobot.utils.constants import ACTION, OBS_STATE
 
 from lerobot_opfa.datasets import io as dataset_io
-from lerobot_opfa.datasets.clouds import recorded_cameras
+from lerobot_opfa.datasets.clouds import recorded_rig
 from lerobot_opfa.datasets.io import read_columns
 from lerobot_opfa.datasets.joint_map import JointMap
 from lerobot_opfa.datasets.layout import DatasetLayout, opfa_record, read_layout
@@ -51,7 +51,7 @@ from lerobot_opfa.hands.universal import UNIVERSAL_JOINT_NAMES
 from lerobot_opfa.pointclouds import DepthRig, DepthRigError
 from lerobot_opfa.policy.action_spaces import universal_mask
 from lerobot_opfa.policy.configuration_opfa import OpfaConfig
-from lerobot_opfa.policy.depth_step import DepthToPointCloudStep
+from lerobot_opfa.policy.depth_step import DepthToPointCloudStep, check_frame
 from lerobot_opfa.policy.joint_steps import OpfaDecodeJointsStep, OpfaEncodeJointsStep, PointCloudBatchStep
 from lerobot_opfa.policy.normalization import OpfaNormalizeStep, OpfaUnnormalizeStep, affine_tables
 
@@ -190,6 +190,7 @@ def _frame_statistics(
         for key in (OBS_STATE, ACTION):
             body, q = joint_map.split(frames[key], key)
             encoder.model(0).check_within_limits(q, f"{root} ({key}, through {joint_map.source})")
+            joint_map.check_spans(frames[key], key, encoder.model(0).lower, encoder.model(0).upper)
             frames[key] = torch.cat([body, q], dim=1)
             joints.append(q)
         if config.space.uses_galr:  # every frame's z once, not each sample's window at every step
@@ -231,23 +232,24 @@ def _frame_statistics(
 
 
 def depth_step(config: OpfaConfig, meta: Any) -> DepthToPointCloudStep | None:
-    """The depth step of `config.cameras`, tried on the dataset's first frame (a pose, unit or workspace
-    that puts no point in the workspace is an error now, not a training run on clouds of zeros); or, for a
-    dataset whose clouds `dataset clouds` made, the step they were made with, so that a robot's depth frames
-    take the same path."""
+    """The depth step of `config.cameras`, judged on the dataset's first frame (`DepthRig.check_frame`: a
+    pose, unit or workspace that does not show the workspace is an error now, not a training run on clouds
+    of the wrong place); or, for a dataset whose clouds `dataset clouds` made, the step they were made with,
+    so that a robot's depth frames take the same path. Clouds made from depth whose calibration is gone
+    (LeRobot's own editing tools rewrite meta/) are refused: their policy could not take a robot's frames."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     if not config.cameras:
-        recorded = recorded_cameras(meta.root)
-        return None if recorded is None else DepthToPointCloudStep(rig=recorded, n_points=config.n_points)
-    step = DepthToPointCloudStep(rig=DepthRig.load(config.cameras).to_dict(), n_points=config.cloud_points)
-    first = LeRobotDataset(meta.repo_id, root=meta.root, episodes=[0])[0]
+        if (recorded := recorded_rig(meta)) is None:
+            return None
+        return DepthToPointCloudStep(rig=recorded.to_dict(), n_points=config.n_points)
+    rig = DepthRig.load(config.cameras)
+    rig.check_keys(meta.features, str(meta.root))
     try:
-        step.observation({k: first[k] for k in step.depth_rig.cameras})
+        check_frame(rig, LeRobotDataset(meta.repo_id, root=meta.root, episodes=[0])[0])
     except DepthRigError as err:
         raise DepthRigError(f"{meta.root}, frame 0: {err}") from None
-    step.reset()
-    return step
+    return DepthToPointCloudStep(rig=rig.to_dict(), n_points=config.cloud_points)
 
 
 def check_trainable_frames(config: OpfaConfig, layout: DatasetLayout, root: Path) -> None:
@@ -260,6 +262,12 @@ def check_trainable_frames(config: OpfaConfig, layout: DatasetLayout, root: Path
     drop = config.drop_n_last_frames
     for index, hand in enumerate(layout.embodiments):
         mine = lengths[hands == index]
+        if not len(mine):
+            raise ValueError(
+                f"{root} has no episode of hand '{hand}', though its observation.embodiment lists it: they "
+                "were deleted after the merge (lerobot-edit-dataset delete_episodes); merge the inputs again "
+                "without that hand, or with its episodes"
+            )
         if np.maximum(mine - drop, 0).sum() == 0:
             raise ValueError(
                 f"hand '{hand}' has no frame to train on: its {len(mine)} episode(s) are at most "
