@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from conftest import BUILTIN_HANDS
 
-from lerobot_opfa.envs.config import OpfaEnvConfig
+from lerobot_opfa.envs.config import FlagError, OpfaEnvConfig
 from lerobot_opfa.envs.env import OpfaSimEnv
 from lerobot_opfa.envs.experts import SQUEEZE, ScriptedExpert
 from lerobot_opfa.envs.observation import DEPTH_QUALITY
@@ -126,7 +126,7 @@ def test_bad_names_list_the_valid_ones(kwargs, message):
     with pytest.raises(ValueError) as err:
         OpfaSimEnv(**kwargs)
     assert message in str(err.value)
-    with pytest.raises(ValueError) as err:
+    with pytest.raises(FlagError) as err:  # what LeRobot's command lines print as one line
         OpfaEnvConfig(**kwargs)
     assert message in str(err.value)
 

@@ -7,6 +7,8 @@ import logging
 import signal
 import sys
 
+from draccus.utils import DecodingError
+
 from lerobot_opfa import demo, train
 from lerobot_opfa.datasets import commands as dataset_commands
 from lerobot_opfa.envs import commands as sim_commands
@@ -60,7 +62,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"unrecognized arguments: {' '.join(unknown)}")
     try:
         return args.func(args) or 0
-    except (ValueError, FileNotFoundError, FileExistsError, KeyError, RuntimeError) as err:
+    except (ValueError, DecodingError, FileNotFoundError, FileExistsError, KeyError, RuntimeError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -52,6 +52,7 @@ def train(argv: list[str]) -> None:
 
     from lerobot_opfa.datasets.io import check_dataset_folder
 
+    _check_output(argv)
     root = next((a.split("=", 1)[1] for a in argv if a.startswith("--dataset.root=")), None)
     if root is not None and Path(root).is_dir():
         check_dataset_folder(root)
@@ -72,6 +73,92 @@ def train(argv: list[str]) -> None:
         mock.patch.object(sys, "argv", ["lerobot-opfa train", *argv]),
     ):
         lerobot_train.main()
+
+
+def _flag(argv: list[str], name: str) -> str | None:
+    """The value of lerobot-train's `--name=value` or `--name value` in `argv` (the last one given)."""
+    value = None
+    for i, arg in enumerate(argv):
+        if arg.startswith(f"--{name}="):
+            value = arg.split("=", 1)[1]
+        elif arg == f"--{name}" and i + 1 < len(argv):
+            value = argv[i + 1]
+    return value
+
+
+def _check_output(argv: list[str]) -> None:
+    """Before any step: the run's folder can be written (LeRobot finds out at the first checkpoint, after
+    the steps before it), and its checkpoints hold no incomplete one (a run killed while saving it leaves
+    a numbered folder without `last` pointing there, which LeRobot refuses without saying so)."""
+    from lerobot_opfa.output_folders import check_writable
+
+    resume = (_flag(argv, "resume") or "false").lower() in ("true", "1", "yes")
+    config_path, output_dir = _flag(argv, "config_path"), _flag(argv, "output_dir")
+    if output_dir is not None:
+        check_writable(output_dir, "--output_dir")
+    elif not resume:
+        check_writable("outputs/train", "--output_dir (not given: outputs/train)")
+    if resume and config_path is not None and "checkpoints" in Path(config_path).parts:
+        parts = Path(config_path).parts
+        at = len(parts) - 1 - parts[::-1].index("checkpoints")
+        checkpoints = Path(*parts[: at + 1])
+        if at + 1 < len(parts):
+            _check_resumable(checkpoints, parts[at + 1], f"--config_path {config_path}")
+        if output_dir is None:
+            check_writable(checkpoints.parent, f"--config_path {config_path}: the run folder")
+    elif not resume and output_dir is not None and (Path(output_dir) / "checkpoints").is_dir():
+        incomplete = _incomplete_checkpoints(Path(output_dir) / "checkpoints")
+        if incomplete:
+            raise ValueError(
+                f"--output_dir {output_dir}: checkpoint {incomplete[-1].name} is incomplete (the run was "
+                f"killed while saving it); {_how_to_go_on(Path(output_dir) / 'checkpoints', incomplete)}"
+            )
+
+
+CHECKPOINT_FILES = (
+    "pretrained_model/config.json",
+    "pretrained_model/model.safetensors",
+    "pretrained_model/train_config.json",
+    "training_state/training_step.json",
+    "training_state/optimizer_state.safetensors",
+)
+"""What every checkpoint LeRobot saves holds, the policy's files first and the optimiser's last."""
+
+
+def _incomplete_checkpoints(checkpoints: Path) -> list[Path]:
+    """The numbered checkpoints newer than `last` (all of them without it) that lack one of their files."""
+    last = checkpoints / "last"
+    done = int(last.resolve().name) if last.exists() and last.resolve().name.isdigit() else -1
+    numbered = sorted((p for p in checkpoints.iterdir() if p.name.isdigit()), key=lambda p: int(p.name))
+    return [
+        p for p in numbered if int(p.name) > done and not all((p / f).is_file() for f in CHECKPOINT_FILES)
+    ]
+
+
+def _how_to_go_on(checkpoints: Path, incomplete: list[Path]) -> str:
+    """What to delete, and what to resume from, when `incomplete` checkpoints are in `checkpoints`."""
+    bad = {p.name for p in incomplete}
+    complete = [p for p in checkpoints.iterdir() if p.name.isdigit() and p.name not in bad]
+    remove = " ".join(str(p) for p in incomplete)
+    if not complete:
+        return f"no checkpoint is complete: delete {checkpoints.parent} and train again"
+    good = max(complete, key=lambda p: int(p.name))
+    return (
+        f"delete {remove} and resume from checkpoint {good.name}: --resume=true "
+        f"--config_path={good / 'pretrained_model' / 'train_config.json'}"
+    )
+
+
+def _check_resumable(checkpoints: Path, name: str, flag: str) -> None:
+    """A resumed checkpoint (`last` or a numbered one) exists and is complete."""
+    incomplete = _incomplete_checkpoints(checkpoints) if checkpoints.is_dir() else []
+    target = checkpoints / name
+    if incomplete and (not target.exists() or target.resolve() in {p.resolve() for p in incomplete}):
+        raise ValueError(
+            f"{flag}: checkpoint {incomplete[-1].name} is incomplete (the run was killed while saving it"
+            f"{'' if target.exists() else f', before {target} was made'}); "
+            f"{_how_to_go_on(checkpoints, incomplete)}"
+        )
 
 
 def _parse_showing_cause(parse):

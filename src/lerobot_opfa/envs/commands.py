@@ -7,6 +7,7 @@ import logging
 from pathlib import Path
 
 from lerobot_opfa.flags import positive_int
+from lerobot_opfa.output_folders import check_writable
 
 logger = logging.getLogger(__name__)
 
@@ -47,6 +48,7 @@ def _scene_args(parser: argparse.ArgumentParser) -> None:
 def _demos(args: argparse.Namespace) -> int:
     from lerobot_opfa.envs.demos import record_demos
 
+    check_writable(args.output_dir, "--output-dir", beside=True)  # the dataset is written beside it first
     meta = record_demos(
         args.task, args.hand, args.episodes, args.output_dir, args.regions, args.seed,
         args.repo_id, args.n_points, args.pointcloud_source, args.depth_cameras, args.overwrite,

@@ -3,10 +3,13 @@ LeRobot adapter on top of the simulator (`env`, `tasks`)."""
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
 import gymnasium as gym
+from draccus.utils import DecodingError
 from lerobot.configs import FeatureType, PolicyFeature
 from lerobot.envs.configs import EnvConfig
 from lerobot.processor import ObservationProcessorStep, PolicyProcessorPipeline
@@ -18,6 +21,21 @@ from lerobot_opfa.envs.scene import WRIST_JOINTS
 from lerobot_opfa.envs.tasks import ENV_STATE_DIM, TASKS, check_task
 from lerobot_opfa.features import OBS_HAND, OBS_POINTCLOUD
 from lerobot_opfa.hands.registry import load_spec
+
+
+class FlagError(DecodingError):
+    """A refused `--env.*` or `--robot.*` value. LeRobot's command lines print a DecodingError as one line
+    (`error: `env.hand`: ...`); a config's ValueError reaches the user only as draccus's "Couldn't
+    instantiate class ..." at the end of a traceback."""
+
+
+@contextmanager
+def flag(name: str) -> Iterator[None]:
+    """Raises the ValueErrors of the block as a `FlagError` of the flag `name` (e.g. `env.hand`)."""
+    try:
+        yield
+    except ValueError as err:
+        raise FlagError(tuple(name.split(".")), str(err)) from None
 
 
 def gym_id(task: str) -> str:
@@ -57,13 +75,20 @@ class OpfaEnvConfig(EnvConfig):
     features_map: dict[str, str] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        check_task(self.task)
-        parse_regions(self.regions)
-        check_choice("obs_type", self.obs_type, OBS_TYPES)
-        check_choice("pointcloud source", self.pointcloud_source, POINTCLOUD_SOURCES)
-        parse_cameras(self.depth_cameras)
-        parse_cameras(self.rgb_cameras)
-        dim = len(WRIST_JOINTS) + len(load_spec(self.hand).joints)
+        with flag("env.task"):
+            check_task(self.task)
+        with flag("env.regions"):
+            parse_regions(self.regions)
+        with flag("env.obs_type"):
+            check_choice("obs_type", self.obs_type, OBS_TYPES)
+        with flag("env.pointcloud_source"):
+            check_choice("pointcloud source", self.pointcloud_source, POINTCLOUD_SOURCES)
+        with flag("env.depth_cameras"):
+            parse_cameras(self.depth_cameras)
+        with flag("env.rgb_cameras"):
+            parse_cameras(self.rgb_cameras)
+        with flag("env.hand"):
+            dim = len(WRIST_JOINTS) + len(load_spec(self.hand).joints)
         self.features = {ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(dim,))}
         self.features["agent_pos"] = PolicyFeature(type=FeatureType.STATE, shape=(dim,))
         self.features_map = {ACTION: ACTION, "agent_pos": OBS_STATE}

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import difflib
 from functools import cache
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -32,8 +33,12 @@ def resolve_spec_path(hand: str | Path) -> Path:
         path = path / "spec.yaml"
     if path.is_file():
         return path
+    if path.suffix in (".yaml", ".yml") or len(path.parts) > 1:
+        raise ValueError(f"hand spec {path} not found (the built-in hands: {', '.join(builtins)})")
+    closest = difflib.get_close_matches(str(hand), builtins, n=1)
+    hint = f" (did you mean '{closest[0]}'?)" if closest else ""
     raise ValueError(
-        f"unknown hand '{hand}': not a built-in ({', '.join(builtins)}) and not a spec.yaml path"
+        f"unknown hand '{hand}'{hint}: not a built-in ({', '.join(builtins)}) and not a spec.yaml path"
     )
 
 

@@ -33,8 +33,12 @@ import yaml
 from lerobot.robots.config import RobotConfig
 from lerobot.robots.robot import Robot
 
+from lerobot_opfa.envs.config import FlagError, flag
 from lerobot_opfa.envs.env import OpfaSimEnv, parse_cameras
 from lerobot_opfa.envs.observation import ColourCameras, DepthPointCloud
+from lerobot_opfa.envs.regions import parse_regions
+from lerobot_opfa.envs.tasks import check_task
+from lerobot_opfa.hands.registry import load_spec
 from lerobot_opfa.pointclouds import DepthRig
 
 logger = logging.getLogger(__name__)
@@ -71,11 +75,19 @@ class OpfaSimRobotConfig(RobotConfig):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        parse_cameras(self.depth_cameras)
-        if self.rgb_cameras:
-            parse_cameras(self.rgb_cameras)
+        with flag("robot.hand"):
+            load_spec(self.hand)
+        with flag("robot.task"):
+            check_task(self.task)
+        with flag("robot.regions"):
+            parse_regions(self.regions)
+        with flag("robot.depth_cameras"):
+            parse_cameras(self.depth_cameras)
+        with flag("robot.rgb_cameras"):
+            if self.rgb_cameras:
+                parse_cameras(self.rgb_cameras)
         if (self.episode_time_s is not None and self.episode_time_s <= 0) or self.fps < 1:
-            raise ValueError("opfa_sim: episode_time_s and fps must be positive")
+            raise FlagError(("robot",), "opfa_sim: episode_time_s and fps must be positive")
 
 
 class OpfaSimRobot(Robot):

@@ -1,0 +1,265 @@
+"""Checkpoints and command lines refuse a user's mistake in one line before any work: a checkpoint killed
+while saving, a mistyped hand in `lerobot-eval` and `lerobot-rollout`, a damaged or older checkpoint, a
+folder that cannot be written; and a checkpoint trained on a user's hand carries that hand with it."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import sys
+from pathlib import Path
+
+import pytest
+from subprocesses import run_command
+
+from lerobot_opfa import cli
+
+ENV = {
+    **os.environ,
+    "HF_HUB_OFFLINE": "1",
+    "HF_DATASETS_OFFLINE": "1",
+    "MUJOCO_GL": "egl",
+    "OMP_NUM_THREADS": "1",
+}
+TINY = [
+    "--policy.type=opfa",
+    "--policy.action_space=raw",
+    "--policy.device=cpu",
+    "--policy.push_to_hub=false",
+    "--policy.down_dims=[16,32]",
+    "--policy.horizon=8",
+    "--policy.n_action_steps=4",
+    "--policy.pointcloud_widths=[16,32]",
+    "--policy.pointcloud_feature_dim=16",
+    "--policy.n_groups=4",
+    "--policy.diffusion_step_embed_dim=16",
+    "--batch_size=4",
+    "--log_freq=1",
+    "--wandb.enable=false",
+]
+
+
+def _run(exe: str, *args: str, timeout: float = 300):
+    return run_command([str(Path(sys.executable).parent / exe), *args], env=ENV, timeout=timeout)
+
+
+def _refused(result) -> str:
+    """The one line a refused command ends with (after LeRobot's log lines, never a traceback)."""
+    assert result.returncode != 0, result.stdout[-2000:]
+    assert "Traceback" not in result.stderr, result.stderr[-3000:]
+    return result.stderr.strip().splitlines()[-1]
+
+
+@pytest.fixture(scope="module")
+def demos(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("refusals") / "demos"
+    code = cli.main(
+        [
+            "sim",
+            "demos",
+            "--task",
+            "press_button",
+            "--hand",
+            "umi",
+            "--episodes",
+            "2",
+            "--regions",
+            "mid_center",
+            "--output-dir",
+            str(root),
+            "--n-points",
+            "32",
+        ]
+    )
+    assert code == 0
+    return root
+
+
+@pytest.fixture(scope="module")
+def trained(demos, tmp_path_factory) -> Path:
+    """A 2-step run of `lerobot-opfa train`: its folder, with checkpoint 000002 and `last`."""
+    run = tmp_path_factory.mktemp("refusals") / "run"
+    result = _run(
+        "lerobot-opfa",
+        "train",
+        *TINY,
+        "--dataset.repo_id=local/demos",
+        f"--dataset.root={demos}",
+        "--steps=2",
+        "--save_freq=2",
+        f"--output_dir={run}",
+    )
+    assert result.returncode == 0, result.stderr[-3000:]
+    return run
+
+
+@pytest.fixture
+def read_only(tmp_path) -> Path:
+    """A folder this process cannot write in: /sys for root (whom permissions do not stop)."""
+    if os.geteuid() == 0:
+        return Path("/sys")
+    folder = tmp_path / "read_only"
+    folder.mkdir(mode=0o555)
+    return folder
+
+
+# --- a checkpoint killed while saving --------------------------------------------------------------------
+def _killed_run(trained: Path, target: Path, keep_complete: bool) -> Path:
+    """A run killed while saving checkpoint 000004: the folder without one of its files, `last` not
+    pointing at it (at 000002 if `keep_complete`, else nowhere: it was the run's first checkpoint)."""
+    checkpoints = target / "checkpoints"
+    checkpoints.mkdir(parents=True)
+    shutil.copytree(trained / "checkpoints" / "000002", checkpoints / "000004")
+    (checkpoints / "000004" / "training_state" / "optimizer_state.safetensors").unlink()
+    if keep_complete:
+        shutil.copytree(trained / "checkpoints" / "000002", checkpoints / "000002")
+        (checkpoints / "last").symlink_to("000002")
+    for config in checkpoints.glob("*/pretrained_model/train_config.json"):
+        config.write_text(json.dumps(json.loads(config.read_text()) | {"output_dir": str(target)}))
+    return checkpoints
+
+
+def test_a_first_checkpoint_killed_while_saving_is_named_by_a_fresh_run_and_a_resume(
+    demos, trained, tmp_path
+):
+    checkpoints = _killed_run(trained, tmp_path / "run", keep_complete=False)
+    fresh = _refused(
+        _run(
+            "lerobot-opfa",
+            "train",
+            *TINY,
+            "--dataset.repo_id=local/demos",
+            f"--dataset.root={demos}",
+            "--steps=6",
+            f"--output_dir={tmp_path / 'run'}",
+        )
+    )
+    assert "checkpoint 000004 is incomplete (the run was killed while saving it)" in fresh, fresh
+    assert f"no checkpoint is complete: delete {tmp_path / 'run'} and train again" in fresh, fresh
+    for name in ("last", "000004"):
+        config = checkpoints / name / "pretrained_model" / "train_config.json"
+        resumed = _refused(_run("lerobot-opfa", "train", "--resume=true", f"--config_path={config}"))
+        assert resumed.startswith(f"error: --config_path {config}: checkpoint 000004 is incomplete"), resumed
+        assert "delete" in resumed and "train again" in resumed, resumed
+
+
+def test_a_later_checkpoint_killed_while_saving_says_what_to_delete_and_resume_from(trained, tmp_path):
+    checkpoints = _killed_run(trained, tmp_path / "run", keep_complete=True)
+    config = checkpoints / "000004" / "pretrained_model" / "train_config.json"
+    resumed = _refused(_run("lerobot-opfa", "train", "--resume=true", f"--config_path={config}"))
+    good = checkpoints / "000002" / "pretrained_model" / "train_config.json"
+    assert f"delete {checkpoints / '000004'} and resume from checkpoint 000002" in resumed, resumed
+    assert resumed.endswith(f"--resume=true --config_path={good}"), resumed
+
+
+# --- a mistyped hand in LeRobot's own commands -----------------------------------------------------------
+def test_a_mistyped_hand_in_lerobot_eval_is_one_line_naming_the_flag_and_the_closest_hand(trained):
+    policy = trained / "checkpoints" / "last" / "pretrained_model"
+    line = _refused(_run("lerobot-eval", f"--policy.path={policy}", "--env.type=opfa", "--env.hand=inspyre"))
+    assert line.startswith("error: `env.hand`: unknown hand 'inspyre' (did you mean 'inspire'?)"), line
+
+
+def test_a_mistyped_hand_in_lerobot_rollout_is_refused_cause_first(trained, tmp_path):
+    policy = trained / "checkpoints" / "last" / "pretrained_model"
+    result = _run(
+        "lerobot-rollout",
+        "--robot.type=opfa_sim",
+        "--robot.hand=inspyre",
+        f"--robot.calibration_dir={tmp_path}",
+        f"--policy.path={policy}",
+        "--duration=1",
+    )
+    line = _refused(result)
+    assert line.lstrip().startswith("RobotConfig: `hand`: unknown hand 'inspyre' (did you mean 'inspire'?)")
+    assert len(line) < 250, line
+
+
+# --- damaged and older checkpoints -----------------------------------------------------------------------
+def test_a_truncated_model_file_through_lerobot_rollout_names_the_file(trained, tmp_path):
+    policy = tmp_path / "policy"
+    shutil.copytree(trained / "checkpoints" / "last" / "pretrained_model", policy)
+    weights = policy / "model.safetensors"
+    with weights.open("r+b") as file:
+        file.truncate(weights.stat().st_size // 2)
+    result = _run(
+        "lerobot-rollout",
+        "--robot.type=opfa_sim",
+        "--robot.hand=umi",
+        "--robot.task=press_button",
+        f"--robot.calibration_dir={tmp_path}",
+        f"--policy.path={policy}",
+        "--duration=1",
+    )
+    assert result.returncode != 0
+    line = result.stderr.strip().splitlines()[-1]
+    assert f"{weights} is damaged (cut short or not a safetensors file" in line, line
+    assert "download the checkpoint again" in line
+
+
+def test_an_rgb_checkpoint_from_before_image_goal_names_the_config_line_to_add(trained, tmp_path):
+    from lerobot.configs.policies import PreTrainedConfig
+    from lerobot.configs.types import FeatureType, PolicyFeature
+    from safetensors.torch import load_file, save_file
+
+    from lerobot_opfa.policy.modeling_opfa import OpfaPolicy
+
+    config = PreTrainedConfig.from_pretrained(trained / "checkpoints" / "last" / "pretrained_model")
+    config.visual_inputs, config.image_feature_dim = "rgb", 8
+    config.input_features["observation.images.front"] = PolicyFeature(FeatureType.VISUAL, (3, 48, 64))
+    OpfaPolicy(config).save_pretrained(tmp_path)
+    saved = json.loads((tmp_path / "config.json").read_text())
+    del saved["image_goal"]  # written before the field existed, without the layer
+    (tmp_path / "config.json").write_text(json.dumps(saved))
+    weights = load_file(tmp_path / "model.safetensors")
+    save_file(
+        {k: v for k, v in weights.items() if not k.startswith("image_goal.")}, tmp_path / "model.safetensors"
+    )
+    with pytest.raises(ValueError) as refused:
+        OpfaPolicy.from_pretrained(tmp_path)
+    assert f'add the line "image_goal": false to {tmp_path / "config.json"}' in str(refused.value)
+    (tmp_path / "config.json").write_text(json.dumps(saved | {"image_goal": False}))
+    assert OpfaPolicy.from_pretrained(tmp_path).image_goal is None
+
+
+# --- folders that cannot be written ----------------------------------------------------------------------
+def test_sim_demos_into_a_read_only_folder_is_one_line_before_any_episode(read_only):
+    result = _run(
+        "lerobot-opfa",
+        "sim",
+        "demos",
+        "--task",
+        "press_button",
+        "--hand",
+        "umi",
+        "--episodes",
+        "1",
+        "--n-points",
+        "16",
+        "--output-dir",
+        str(read_only / "demos"),
+    )
+    assert result.returncode == 2 and "Traceback" not in result.stderr, result.stderr[-3000:]
+    assert result.stderr.strip() == (
+        f"error: --output-dir {read_only / 'demos'}: cannot write in {read_only} (Permission denied); "
+        "choose a folder you can write to"
+    )
+
+
+def test_train_into_a_read_only_folder_is_one_line_before_any_step(demos, read_only):
+    result = _run(
+        "lerobot-opfa",
+        "train",
+        *TINY,
+        "--dataset.repo_id=local/demos",
+        f"--dataset.root={demos}",
+        "--steps=2",
+        "--save_freq=2",
+        f"--output_dir={read_only / 'run'}",
+    )
+    line = _refused(result)
+    assert (
+        line == f"error: --output_dir {read_only / 'run'}: cannot write in {read_only} (Permission denied); "
+        "choose a folder you can write to"
+    )
+    assert "Dataset held in memory" not in result.stderr and "step:" not in result.stderr
