@@ -174,7 +174,7 @@ def test_map_errors_are_one_line_naming_the_map_and_the_entry(rigs, tmp_path):
     current = ["hand.current"]
     cases = [
         (
-            "entry 'hand.thumb_rotat' is not in the dataset's observation.state \\(closest: hand.thumb_rot",
+            "entry 'hand.thumb_rotat' is not in the dataset's observation.state \\(closest: 'hand.thumb_rot",
             dict(entries={**without_thumb, "hand.thumb_rotat": "thumb_yaw"}, drop=current),
         ),
         (

@@ -14,15 +14,20 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 from lerobot.datasets.dataset_metadata import LeRobotDatasetMetadata
 from lerobot.datasets.dataset_writer import DatasetWriter
 from lerobot.utils.constants import ACTION, OBS_STATE
-from test_policy import ENV, save_galr
+from test_joint_maps import N_POINTS, robot_dataset, write_map
+from test_policy import ENV, make_policy, save_galr
 
 from lerobot_opfa import cli
 from lerobot_opfa.datasets.io import atomic_directory, new_dataset, read_columns
+from lerobot_opfa.datasets.joint_map import JointMap, JointMapError
 from lerobot_opfa.datasets.layout import OPFA_META_FILE, opfa_record, read_layout
-from lerobot_opfa.datasets.synthetic import write_synthetic_dataset
+from lerobot_opfa.datasets.synthetic import WRIST_NAMES, write_synthetic_dataset
+from lerobot_opfa.features import OBS_EMBODIMENT
+from lerobot_opfa.hands import load_hand
 
 EDIT_DATASET = Path(sys.executable).with_name("lerobot-edit-dataset")
 
@@ -142,3 +147,134 @@ def test_a_dataset_without_a_record_keeps_no_stale_copy(merged, tmp_path):
     info = json.loads((merged / "umi" / "meta" / "info.json").read_text())
     assert "info" not in info["features"][OBS_STATE], "a dataset without a record has no copy"
     assert ACTION in info["features"] and np.ndim(info["features"][OBS_STATE]["shape"]) == 1
+
+
+def test_a_hand_whose_episodes_were_all_deleted_is_named_as_such(merged):
+    """Deleting every episode of one hand from a merge leaves the hand listed without frames: the error
+    says so, not that its episodes are too short."""
+    result = _delete_episodes(
+        merged / "merged", merged / "no_inspire", [2, 3]
+    )  # the merge's inspire episodes
+    assert result.returncode == 0, result.stderr[-3000:]
+    with pytest.raises(ValueError, match="has no episode of hand 'inspire'") as error:
+        make_policy(merged, "no_inspire", action_space="galr")
+    assert "\n" not in str(error.value) and "delete_episodes" in str(error.value)
+
+
+# --- joint maps and merges ---------------------------------------------------------------------------
+
+SIX = [f"hand.j{i}" for i in range(6)]
+"""Two robots, one with an Inspire hand and one with an Ability hand, name their six actuators alike."""
+
+
+@pytest.fixture(scope="module")
+def robots(tmp_path_factory) -> Path:
+    """`so101_inspire` and `so101_ability`: robots' datasets (radians) with the same entry names, and a map
+    for each hand."""
+    root = tmp_path_factory.mktemp("robots")
+    save_galr(root / "galr", ["inspire", "ability"])
+    for seed, hand in enumerate(["inspire", "ability"]):
+        write_synthetic_dataset(
+            root / f"{hand}_sim", hand, episodes=2, frames=8, n_points=N_POINTS, seed=seed
+        )
+        entries = dict(zip(SIX, load_hand(hand).joint_names, strict=True))
+        robot_dataset(root / f"{hand}_sim", root / f"so101_{hand}", f"so101_{hand}", entries, {}, body=[])
+        write_map(root / f"{hand}.yaml", hand, entries)
+    return root
+
+
+def _merge(robots: Path, output: Path, inputs: list[str], maps: list[str]) -> int:
+    roots = [str(robots / i) for i in inputs]
+    return cli.main(["dataset", "merge", "--inputs", *roots, "--output", str(output), "--joint-maps", *maps])
+
+
+def test_closest_entry_names_are_quoted(robots):
+    """A trailing space in a map's entry is visible in the message."""
+    meta = LeRobotDatasetMetadata("local/so101_inspire", root=robots / "so101_inspire")
+    joints = load_hand("inspire").joint_names
+    path = write_map(robots.parent / "spaced.yaml", "inspire", dict(zip(SIX, joints, strict=True)))
+    path.write_text(path.read_text().replace("  hand.j0:", '  "hand.j0 ":'))
+    with pytest.raises(JointMapError, match="entry 'hand.j0 ' is not in .* \\(closest: 'hand.j0', "):
+        JointMap.load(path).bind(meta.features[OBS_STATE]["names"], meta.features[ACTION]["names"])
+
+
+def test_a_map_for_another_hand_than_the_robot_type_names_is_refused(robots, tmp_path, capsys):
+    """`hand: ability` on the data of a robot whose robot_type names the Inspire: its values lie within the
+    Ability's limits, so nothing else would notice."""
+    assert _merge(robots, tmp_path / "m", ["so101_inspire"], [str(robots / "ability.yaml")]) == 2
+    err = _one_line(capsys)
+    assert "maps hand 'ability', but the dataset's robot_type 'so101_inspire' names hand 'inspire'" in err
+    assert "robot_type: so101_inspire" in err and str(robots / "ability.yaml") in err
+    confirmed = tmp_path / "confirmed.yaml"
+    confirmed.write_text((robots / "ability.yaml").read_text() + "robot_type: so101_inspire\n")
+    assert _merge(robots, tmp_path / "m", ["so101_inspire"], [str(confirmed)]) == 0, "confirmed deliberately"
+    assert _merge(robots, tmp_path / "i", ["so101_inspire"], [str(robots / "inspire.yaml")]) == 0
+
+
+def test_a_scale_that_squeezes_a_joint_is_refused(robots, tmp_path, capsys):
+    """A degrees scale on entries already in radians puts every value within the limits, at a tenth of the
+    range: refused in the merge and in training."""
+    joints = load_hand("inspire").joint_names
+    degrees = {joint: (0.0174533, 0.0) for joint in joints}
+    path = write_map(tmp_path / "degrees.yaml", "inspire", dict(zip(SIX, joints, strict=True)), degrees)
+    assert _merge(robots, tmp_path / "m", ["so101_inspire"], [str(path)]) == 2
+    err = _one_line(capsys)
+    assert "entry 'hand.j0' with scale 0.0174533 moves joint 'thumb_yaw' over 0.0" in err
+    assert "of its range 1.31 ([0, 1.31])" in err and "use scale 1" in err
+    with pytest.raises(JointMapError, match="with scale 0.0174533 moves joint 'thumb_yaw'"):
+        make_policy(robots, "so101_inspire", action_space="raw", joint_map=str(path))
+
+
+def test_two_robots_named_alike_merge_with_a_map_bound_to_each(robots, tmp_path, capsys):
+    inputs = ["so101_inspire", "so101_ability"]
+    maps = [str(robots / "inspire.yaml"), str(robots / "ability.yaml")]
+    assert _merge(robots, tmp_path / "m", inputs, maps) == 2
+    assert f"bind one to it: --joint-maps {robots / 'so101_inspire'}=MAP" in _one_line(capsys)
+    assert _merge(robots, tmp_path / "m", inputs, [f"{robots / 'nowhere'}={maps[0]}"]) == 2
+    assert "not a map file, nor INPUT=MAP with INPUT one of --inputs" in _one_line(capsys)
+    bound = [f"{robots / i}={m}" for i, m in zip(inputs, maps, strict=True)]
+    assert _merge(robots, tmp_path / "m", inputs, bound) == 0
+    meta = LeRobotDatasetMetadata("local/m", root=tmp_path / "m")
+    assert meta.features[OBS_EMBODIMENT]["names"] == ["inspire", "ability"]
+    merged = read_columns(tmp_path / "m", [OBS_STATE, OBS_EMBODIMENT])
+    for index, hand in enumerate(["inspire", "ability"]):
+        sim = read_columns(robots / f"{hand}_sim", [OBS_STATE])[OBS_STATE][:, 6:]
+        universal = load_hand(hand).to_universal(torch.tensor(sim)).numpy()
+        rows = merged[OBS_EMBODIMENT].reshape(-1) == index
+        assert np.allclose(merged[OBS_STATE][rows, : universal.shape[1]], universal, atol=1e-5), hand
+
+
+def _camera_dataset(root: Path, cameras: list[str]) -> Path:
+    """A one-episode umi dataset with the given RGB cameras and no cloud."""
+    names = [*WRIST_NAMES, *load_hand("umi").joint_names]
+    image = {"dtype": "image", "shape": (8, 8, 3), "names": ["height", "width", "channels"]}
+    features = {
+        OBS_STATE: {"dtype": "float32", "shape": (len(names),), "names": names},
+        ACTION: {"dtype": "float32", "shape": (len(names),), "names": names},
+        **dict.fromkeys(cameras, image),
+    }
+    create = dict(repo_id=f"local/{root.name}", fps=10, features=features, robot_type="umi", use_videos=False)
+    with new_dataset(root, **create) as dataset:
+        for t in range(3):
+            state = np.full(len(names), 0.01 * t, np.float32)
+            frame = {OBS_STATE: state, ACTION: state, "task": "reach"}
+            dataset.add_frame(frame | {key: np.full((8, 8, 3), 40 * t, np.uint8) for key in cameras})
+        dataset.save_episode()
+    return root
+
+
+def test_a_merge_of_inputs_that_share_no_camera_is_refused(tmp_path, capsys):
+    left = _camera_dataset(tmp_path / "left", ["observation.images.left"])
+    right = _camera_dataset(tmp_path / "right", ["observation.images.right", "observation.images.wrist"])
+    merge = ["dataset", "merge", "--inputs", str(left), str(right), "--output"]
+    assert cli.main([*merge, str(tmp_path / "m")]) == 2
+    err = _one_line(capsys)
+    assert "the inputs share no camera or point cloud" in err
+    assert (
+        f"{left}: observation.images.left; {right}: observation.images.right, observation.images.wrist" in err
+    )
+    assert not (tmp_path / "m").exists()
+    numeric = [_camera_dataset(tmp_path / f"numeric{i}", []) for i in range(2)]
+    assert (
+        cli.main(["dataset", "merge", "--inputs", *map(str, numeric), "--output", str(tmp_path / "n")]) == 0
+    )

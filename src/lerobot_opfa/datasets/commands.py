@@ -20,11 +20,12 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     )
     merge.add_argument(
         "--joint-maps",
-        type=Path,
         nargs="+",
         default=[],
+        metavar="[INPUT=]MAP",
         help="joint map YAML files for inputs whose entries are not named after their hand's joints "
-        "(docs/usage.md); each input takes the map whose entries it has",
+        "(docs/usage.md); each input takes the map whose entries it has, or the one bound to it as INPUT=MAP "
+        "(robots whose entries are named alike)",
     )
     merge.add_argument("--repo-id", default="local/opfa_merged")
     merge.add_argument("--overwrite", action="store_true")

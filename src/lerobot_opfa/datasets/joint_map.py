@@ -10,6 +10,7 @@ A map is a small YAML file (docs/usage.md):
       right_hand.ring_mcp_side.pos: ring_mcp_abd
       right_hand.ring_mcp_fwd.pos: {joint: ring_mcp_flex, scale: 0.0174533, offset: 0.0}  # ... or in degrees
     drop: [right_hand.ring_current]  # observation-only entries the policy does not read (optional)
+    robot_type: so101_ability       # only to confirm a dataset whose robot_type names another hand (optional)
 
 A spec joint's value is `scale * entry + offset`. Every other entry is body state (an arm's joints, a wrist
 pose in any convention) that the policy models as it is. A dataset whose hand entries are named after the
@@ -27,10 +28,15 @@ from pathlib import Path
 
 import torch
 
+from lerobot_opfa.hands.model import LIMIT_TOLERANCE
 from lerobot_opfa.hands.registry import builtin_hands, hand_ref, load_spec
 from lerobot_opfa.hands.spec import HandSpec
 from lerobot_opfa.hands.universal import FINGERS
 from lerobot_opfa.yaml_files import YamlFileError, read_yaml
+
+SPAN_FRACTION = 0.1
+"""A scaled joint whose frames use less than this fraction of its range, while its entries as recorded
+span more within its limits, is a scale applied to entries already in the spec's units (`check_spans`)."""
 
 POSITION_SUFFIX = ".pos"
 """LeRobot's robots name a motor's position entry `<motor>.pos` (what `lerobot-record` writes)."""
@@ -60,6 +66,8 @@ class JointMap:
     joints: dict[str, MappedJoint]
     """Dataset entry -> the spec joint it holds."""
     drop: tuple[str, ...] = ()
+    robot_type: str | None = None
+    """The dataset `robot_type` the map is confirmed for when it names another hand (`check_robot_type`)."""
     source: str = "joint map"
     """Where the map came from, for messages."""
     state_names: tuple[str, ...] = ()
@@ -93,13 +101,19 @@ class JointMap:
         drop = raw.get("drop") or []
         if not isinstance(drop, list):
             raise JointMapError(f"{source}: 'drop' must be a list of entry names")
-        unknown = set(raw) - {"hand", "joints", "drop", "state_names", "action_names"}
+        unknown = set(raw) - {"hand", "joints", "drop", "robot_type", "state_names", "action_names"}
         if unknown:
-            raise JointMapError(f"{source}: unknown field(s) {sorted(unknown)} (hand, joints, drop)")
+            raise JointMapError(
+                f"{source}: unknown field(s) {sorted(unknown)} (hand, joints, drop, robot_type)"
+            )
+        robot_type = raw.get("robot_type")
+        if robot_type is not None and not isinstance(robot_type, str):
+            raise JointMapError(f"{source}: 'robot_type' must be a dataset's robot_type, got {robot_type!r}")
         return cls(
             hand=raw["hand"],
             joints=joints,
             drop=tuple(map(str, drop)),
+            robot_type=robot_type,
             source=source,
             state_names=tuple(raw.get("state_names", ())),
             action_names=tuple(raw.get("action_names", ())),
@@ -113,6 +127,7 @@ class JointMap:
                 e: {"joint": j.joint, "scale": j.scale, "offset": j.offset} for e, j in self.joints.items()
             },
             "drop": list(self.drop),
+            **({"robot_type": self.robot_type} if self.robot_type is not None else {}),
             "state_names": list(self.state_names),
             "action_names": list(self.action_names),
         }
@@ -135,9 +150,9 @@ class JointMap:
                 if entry not in names:
                     near = difflib.get_close_matches(entry, names, n=3)
                     raise JointMapError(
-                        f"{self.source}: entry '{entry}' is not in the dataset's {key}"
+                        f"{self.source}: entry {entry!r} is not in the dataset's {key}"
                         + (
-                            f" (closest: {', '.join(near)})"
+                            f" (closest: {', '.join(map(repr, near))})"
                             if near
                             else f" ({len(names)} entries: {names[:8]} ...)"
                         )
@@ -171,6 +186,41 @@ class JointMap:
                 "state and action hold the same entries: list them under 'drop'"
             )
         return replace(self, state_names=tuple(state), action_names=tuple(action), _columns={})
+
+    def check_robot_type(self, robot_type: str | None) -> None:
+        """Refuses a map for another hand than the one the dataset's `robot_type` names (`inspire`, or a word
+        of `arm_inspire`), unless the map confirms that robot_type: the policy would learn the wrong hand
+        without a word."""
+        named = hands_named_in(robot_type)
+        hand = self.spec.name
+        if not named or hand in named or self.robot_type == robot_type:
+            return
+        raise JointMapError(
+            f"{self.source}: maps hand '{hand}', but the dataset's robot_type '{robot_type}' names hand "
+            f"'{named[-1]}'; use a map for '{named[-1]}', or, if this robot does carry '{hand}', confirm it "
+            f"with the line `robot_type: {robot_type}` in the map"
+        )
+
+    def check_spans(self, x: torch.Tensor, key: str, lower: torch.Tensor, upper: torch.Tensor) -> None:
+        """Refuses a scale that squeezes a joint into less than `SPAN_FRACTION` of its range (`lower`,
+        `upper`: the hand's limits in spec order) while its entry as recorded spans more, within those
+        limits: a degrees scale on entries already in radians, which the limit check lets through."""
+        names, by_joint = self.names(key), {j.joint: (e, j) for e, j in self.joints.items()}
+        x = x.detach().to("cpu", torch.float64)
+        for i, joint in enumerate(self.spec.actuated_joints):
+            entry, mapped = by_joint[joint]
+            raw, low, high = x[:, names.index(entry)], float(lower[i]), float(upper[i])
+            width, recorded = high - low, float(raw.max() - raw.min())
+            span = abs(mapped.scale) * recorded
+            slack = LIMIT_TOLERANCE * width
+            within = low - slack <= float(raw.min()) and float(raw.max()) <= high + slack
+            if mapped.scale != 1 and span < SPAN_FRACTION * width <= recorded and within:
+                raise JointMapError(
+                    f"{self.source}: entry {entry!r} with scale {mapped.scale:g} moves joint '{joint}' over "
+                    f"{span:.3g} of its range {width:.3g} ([{low:.3g}, {high:.3g}]) in {key}, while as "
+                    f"recorded it spans {recorded:.3g} within those limits: it is in the spec's units "
+                    "already (radians, metres); use scale 1, or invert the scale if it is the wrong way round"
+                )
 
     @property
     def body_names(self) -> list[str]:
@@ -242,6 +292,12 @@ def _mapped_joint(value, where: str) -> MappedJoint:
     if not math.isfinite(scale) or not math.isfinite(offset) or scale == 0:
         raise JointMapError(f"{where}: scale must be finite and non-zero and offset finite, got {value!r}")
     return MappedJoint(value["joint"], scale, offset)
+
+
+def hands_named_in(robot_type: str | None) -> list[str]:
+    """The built-in hands a dataset's `robot_type` names: all of it, or words of it (`arm_inspire`)."""
+    text = (robot_type or "").lower()
+    return [h for h in builtin_hands() if re.search(rf"(?<![a-z0-9]){re.escape(h)}(?![a-z0-9])", text)]
 
 
 # --- when names match no hand: the closest hand and the map to write --------------------------------------

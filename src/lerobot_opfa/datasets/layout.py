@@ -92,8 +92,8 @@ def identify_hand(names: list[str], robot_type: str | None, hands: list[str] | N
     unknown = [n for n in names if joint_of(n) not in closest.joints]
     hands = ", ".join(repr(s.name) for s in [closest, *alternatives])
     raise JointNameError(
-        f"the state/action entries ({len(names)}: {', '.join(names[:4])}, ...) are not named after the "
-        f"joints of {whose}; closest by joint structure: {hands} "
+        f"the state/action entries ({len(names)}: {', '.join(map(repr, names[:4]))}, ...) are not named "
+        f"after the joints of {whose}; closest by joint structure: {hands} "
         f"({len(closest.joints)} joints; missing {missing}, unknown {unknown}). "
         "Write a joint map (docs/usage.md) and pass it "
         "(merge: --joint-maps FILE; training: --policy.joint_map=FILE); a start, to check line by line:\n"
@@ -197,6 +197,7 @@ def read_layout(
         joint_map = JointMap.named_after(spec, names, actions)
     else:
         joint_map = joint_map.bind(names, actions)
+        joint_map.check_robot_type(robot_type)
         spec = joint_map.spec
     return DatasetLayout("native", [spec.name], [hand_ref(spec)], joint_map.body_names, [joint_map])
 

@@ -35,7 +35,7 @@ from lerobot_opfa.datasets.layout import (
     read_layout,
 )
 from lerobot_opfa.datasets.statistics import column_statistics, noise_floor, raw_noise, write_statistics
-from lerobot_opfa.features import OBS_EMBODIMENT
+from lerobot_opfa.features import OBS_EMBODIMENT, OBS_POINTCLOUD
 from lerobot_opfa.galr import checkpoints
 from lerobot_opfa.galr.frozen import (
     encode_joints,
@@ -63,7 +63,8 @@ class _Input:
     layout: DatasetLayout
 
 
-def _open(root: Path, hands: list[str] | None, joint_maps: list[JointMap]) -> _Input:
+def _open(root: Path, hands: list[str] | None, joint_maps: list[JointMap], bound: JointMap | None) -> _Input:
+    """An input, read through the map bound to it, else the one map of `joint_maps` whose entries it has."""
     check_dataset_folder(root)
     meta = LeRobotDatasetMetadata(f"local/{root.name}", root=root)
     if meta.robot_type == LATENT_ROBOT_TYPE:
@@ -71,10 +72,11 @@ def _open(root: Path, hands: list[str] | None, joint_maps: list[JointMap]) -> _I
             f"{root} is a latent dataset (`dataset latent`); merge the per-hand datasets it came from"
         )
     names = set(feature_names(meta.features, OBS_STATE))
-    fitting = [m for m in joint_maps if set(m.joints) <= names]
+    fitting = [bound] if bound is not None else [m for m in joint_maps if set(m.joints) <= names]
     if len(fitting) > 1:
         raise ValueError(
-            f"{root}: several joint maps fit its entries ({', '.join(m.source for m in fitting)})"
+            f"{root}: several joint maps fit its entries ({', '.join(m.source for m in fitting)}); bind one "
+            f"to it: --joint-maps {root}=MAP"
         )
     joint_map = fitting[0] if fitting else None
     layout = read_layout(meta.features, meta.robot_type, root, hands, joint_map)
@@ -106,6 +108,27 @@ def _passthrough(inputs: list[_Input]) -> dict[str, dict]:
     return common
 
 
+def _maps_per_input(roots: list[Path], joint_maps: list[Path | str]) -> tuple[dict[Path, JointMap], list]:
+    """The maps bound to an input (`INPUT=MAP`, for robots whose entries are named alike) and the others
+    (`MAP`: each input takes the one whose entries it has)."""
+    bound, free = {}, []
+    for item in map(str, joint_maps):
+        if Path(item).is_file() or "=" not in item:
+            free.append(JointMap.load(item))
+            continue
+        split = next((i for i, c in enumerate(item) if c == "=" and Path(item[:i]).resolve() in roots), None)
+        if split is None:
+            raise ValueError(
+                f"--joint-maps {item}: not a map file, nor INPUT=MAP with INPUT one of --inputs "
+                f"({', '.join(map(str, roots))})"
+            )
+        root = Path(item[:split]).resolve()
+        if root in bound:
+            raise ValueError(f"--joint-maps binds two maps to the input {root}; give it one")
+        bound[root] = JointMap.load(item[split + 1 :])
+    return bound, free
+
+
 def merge_datasets(
     inputs: list[Path | str],
     output: Path | str,
@@ -116,14 +139,15 @@ def merge_datasets(
 ) -> Path:
     """Writes the merged dataset to `output` atomically and returns its path. `joint_maps`: map files for
     inputs whose entries are not named after their hand's joints; each input takes the one whose entries
-    it has."""
+    it has, or the one bound to it as `INPUT=MAP`."""
     galr = None
     hands = None
     if galr_path is not None:
         galr = load_galr(str(galr_path))
         hands = known_hand_refs(galr)
-    maps = [JointMap.load(path) for path in joint_maps]
-    opened = [_open(root, hands, maps) for root in check_outside_inputs(inputs, output)]
+    roots = check_outside_inputs(inputs, output)
+    bound, maps = _maps_per_input(roots, joint_maps)
+    opened = [_open(root, hands, maps, bound.get(root)) for root in roots]
     unused = [m.source for m in maps if not any(i.layout.joint_maps[0].source == m.source for i in opened)]
     if unused:
         raise ValueError(f"joint map(s) {unused} fit none of the inputs (their entries are in no input)")
@@ -144,6 +168,7 @@ def merge_datasets(
     universal = list(UNIVERSAL_JOINT_NAMES)
     names = [*wrist, *universal, *latent_names(latent_dim)]
     extra, cameras = _passthrough(opened), _cameras(opened)
+    _check_visual(opened, [*extra, *cameras])
     kept = {OBS_STATE, ACTION, *BOOKKEEPING, *extra, *cameras}
     dropped = sorted({k for i in opened for k in i.meta.features} - kept)
     if dropped:
@@ -249,6 +274,7 @@ def _check_limits(source: _Input, galr) -> None:
                 f"frames, first in entry '{entry}'"
             )
         hand.check_within_limits(q, f"{source.root} ({key}, through {joint_map.source})")
+        joint_map.check_spans(torch.tensor(values), key, hand.lower, hand.upper)
 
 
 CAMERA_DTYPES = ("image", "video")
@@ -275,6 +301,20 @@ def _cameras(inputs: list[_Input]) -> dict[str, dict]:
         cameras[key] = {"dtype": "image", "shape": tuple(feature["shape"]), "names": feature["names"],
                         "info": {"is_depth_map": depth}}  # fmt: skip
     return cameras
+
+
+def _check_visual(inputs: list[_Input], kept: list[str]) -> None:
+    """Inputs with cameras or clouds that share none would make a merge with nothing to see: refused."""
+    seen = {
+        i.root: [k for k, f in i.meta.features.items() if f["dtype"] in CAMERA_DTYPES or k == OBS_POINTCLOUD]
+        for i in inputs
+    }
+    if any(seen.values()) and not any(k in kept for keys in seen.values() for k in keys):
+        found = "; ".join(f"{root}: {', '.join(keys) or 'none'}" for root, keys in seen.items())
+        raise ValueError(
+            f"the inputs share no camera or point cloud ({found}): their merge would hold none to train on; "
+            "merge inputs recorded with the same camera key"
+        )
 
 
 def _clouds_calibration(inputs: list[_Input]) -> dict | None:
