@@ -191,7 +191,6 @@ def _frame_statistics(
             body, q = joint_map.split(frames[key], key)
             encoder.model(0).check_within_limits(q, f"{root} ({key}, through {joint_map.source})")
             joint_map.check_spans(frames[key], key, encoder.model(0).lower, encoder.model(0).upper)
-            joint_map.check_spans(frames[key], key, encoder.model(0).lower, encoder.model(0).upper)
             frames[key] = torch.cat([body, q], dim=1)
             joints.append(q)
         if config.space.uses_galr:  # every frame's z once, not each sample's window at every step
@@ -263,12 +262,6 @@ def check_trainable_frames(config: OpfaConfig, layout: DatasetLayout, root: Path
     drop = config.drop_n_last_frames
     for index, hand in enumerate(layout.embodiments):
         mine = lengths[hands == index]
-        if not len(mine):
-            raise ValueError(
-                f"{root} has no episode of hand '{hand}', though its observation.embodiment lists it: they "
-                "were deleted after the merge (lerobot-edit-dataset delete_episodes); merge the inputs again "
-                "without that hand, or with its episodes"
-            )
         if not len(mine):
             raise ValueError(
                 f"{root} has no episode of hand '{hand}', though its observation.embodiment lists it: they "
