@@ -17,7 +17,6 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
-from lerobot.utils.constants import OBS_STATE
 
 if TYPE_CHECKING:
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
@@ -214,6 +213,8 @@ def _close_writers(dataset: LeRobotDataset) -> None:
 def keep_record(root: Path) -> None:
     """Copies the dataset's `OPFA_META_FILE` into its `meta/info.json` (`OPFA_INFO_KEY`), or removes a copy
     its features inherited from an input when it has no record."""
+    from lerobot.utils.constants import OBS_STATE
+
     path = root / "meta" / "info.json"
     info = read_json(path)
     state = info["features"].get(OBS_STATE)
@@ -231,6 +232,8 @@ def keep_record(root: Path) -> None:
 
 def embedded_record(root: Path | str) -> dict | None:
     """The copy of a dataset's record its `meta/info.json` keeps (`keep_record`), if any."""
+    from lerobot.utils.constants import OBS_STATE  # imported here: light commands read this module
+
     path = Path(root) / "meta" / "info.json"
     if not path.is_file():
         return None
