@@ -263,3 +263,52 @@ def test_train_into_a_read_only_folder_is_one_line_before_any_step(demos, read_o
         "choose a folder you can write to"
     )
     assert "Dataset held in memory" not in result.stderr and "step:" not in result.stderr
+
+
+# --- a checkpoint trained on a user's hand carries it ----------------------------------------------------
+def test_a_policy_trained_on_a_user_hand_acts_after_the_checkpoint_moved_and_the_spec_is_gone(
+    user_shadow_spec, tmp_path, monkeypatch
+):
+    """The hand's spec, MJCF files and meshes travel in the processors' state files; loaded, they are
+    unpacked into the Hugging Face cache, and the GaLR's registry and the joint maps point there."""
+    import torch
+    from huggingface_hub import constants
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+    from lerobot.policies.factory import make_pre_post_processors
+
+    from lerobot_opfa.galr.model import Galr, GalrConfig, hand_record
+    from lerobot_opfa.hands import load_hand
+    from lerobot_opfa.policy.modeling_opfa import OpfaPolicy
+
+    spec = user_shadow_spec
+    demos, merged = tmp_path / "demos", tmp_path / "merged"
+    assert cli.main(["sim", "demos", "--task", "press_button", "--hand", str(spec), "--episodes", "2",
+                     "--n-points", "16", "--output-dir", str(demos)]) == 0  # fmt: skip
+    tiny = dict(latent_dim=4, encoder="pointnet", n_points=64, n_level1=32, n_superpoints=24,
+                widths=(8, 16, 16), decoder_hidden=16)  # fmt: skip
+    torch.manual_seed(0)
+    Galr(GalrConfig(**tiny, hands=[hand_record(load_hand(spec))])).save_pretrained(tmp_path / "galr")
+    assert cli.main(["dataset", "merge", "--inputs", str(demos), "--output", str(merged),
+                     "--galr", str(tmp_path / "galr")]) == 0  # fmt: skip
+    run = tmp_path / "run"
+    flags = [f.replace("action_space=raw", "action_space=galr") for f in TINY]
+    data = ["--dataset.repo_id=local/merged", f"--dataset.root={merged}"]
+    result = _run("lerobot-opfa", "train", *flags, *data, "--steps=2", "--save_freq=2", f"--output_dir={run}")
+    assert result.returncode == 0, result.stderr[-3000:]
+
+    moved = tmp_path / "elsewhere"
+    shutil.move(run / "checkpoints" / "000002" / "pretrained_model", moved)
+    for folder in (run, spec.parent, tmp_path / "assets", tmp_path / "galr"):
+        shutil.rmtree(folder)
+    monkeypatch.setattr(constants, "HF_HOME", str(tmp_path / "hf_home"))
+    policy = OpfaPolicy.from_pretrained(moved).eval()
+    pre, post = make_pre_post_processors(policy.config, pretrained_path=str(moved))
+    frame = LeRobotDataset("local/demos", root=demos)[0]
+    observation = {k: frame[k] for k in ("observation.state", "observation.pointcloud")} | {
+        "task": frame["task"]
+    }
+    with torch.no_grad():
+        action = post(policy.select_action(pre(observation)))
+    assert action.shape == (1, frame["action"].shape[0]) and torch.isfinite(action).all()
+    unpacked = list((tmp_path / "hf_home" / "lerobot_opfa" / "hands").glob("*/spec.yaml"))
+    assert len(unpacked) == 1 and list(unpacked[0].parent.glob("model/stls/hand/*.stl"))

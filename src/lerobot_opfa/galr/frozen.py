@@ -10,7 +10,7 @@ import torch
 
 from lerobot_opfa.galr import checkpoints
 from lerobot_opfa.galr.model import Galr
-from lerobot_opfa.hands.registry import builtin_hands
+from lerobot_opfa.hands.registry import builtin_hands, load_spec
 
 
 @cache
@@ -44,6 +44,14 @@ def galr_hand_refs(galr: Galr) -> list[str]:
     """What `load_hand` takes for each hand of the GaLR's registry: built-in names, else spec paths."""
     builtins = builtin_hands()
     return [h["name"] if h["name"] in builtins else h["spec"] for h in galr.config.hands]
+
+
+def relocate_hand(galr: Galr, name: str, spec: str) -> None:
+    """Points the registry entry of hand `name` at `spec`, the copy of its files a policy checkpoint carries
+    (`hands.bundle`): its path and hash differ from the original's (the spec names the model by its place
+    in the copy), the hand does not."""
+    record = next(h for h in galr.config.hands if h["name"] == name)
+    record["spec"], record["sha256"] = spec, load_spec(spec).sha256
 
 
 @torch.no_grad()

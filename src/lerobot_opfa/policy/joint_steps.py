@@ -28,14 +28,18 @@ from lerobot.utils.constants import ACTION, OBS_STATE
 
 from lerobot_opfa.datasets.joint_map import JointMap
 from lerobot_opfa.features import OBS_EMBODIMENT, OBS_HAND, OBS_POINTCLOUD, batch_embodiments
-from lerobot_opfa.galr.frozen import encode_joints, encode_universal
+from lerobot_opfa.galr.frozen import encode_joints, encode_universal, relocate_hand
 from lerobot_opfa.galr.model import Galr
+from lerobot_opfa.hands.bundle import pack, unpack
 from lerobot_opfa.hands.model import LIVE_LIMIT_TOLERANCE, HandModel
-from lerobot_opfa.hands.registry import load_hand, load_spec
+from lerobot_opfa.hands.registry import builtin_hands, load_hand, load_spec
 from lerobot_opfa.hands.universal import UNIVERSAL_JOINT_NAMES
 from lerobot_opfa.policy.action_spaces import ACTION_SPACES, ActionSpace
 from lerobot_opfa.policy.deferred import defer
 from lerobot_opfa.policy.latent_cache import LatentCache
+
+USER_HAND = "user_hand."
+"""State-dict key prefix of a user hand's archive (`hands.bundle`), by the hand's name."""
 
 _ENCODERS: dict[str, weakref.WeakValueDictionary[int, OpfaEncodeJointsStep]] = {}
 """link id -> the live preprocessor steps that have processed a batch (their postprocessor partners read
@@ -227,6 +231,28 @@ class _HandSpace:
                 f"GaLR weights do not fit: missing {missing}, unexpected {result.unexpected_keys}"
             )
 
+    def user_hands(self) -> dict[str, torch.Tensor]:
+        """Each user hand (a spec path, not a built-in's name) as an archive of its files (`hands.bundle`),
+        so that the checkpoint carries the hand: its spec may be gone, or on another machine."""
+        return {
+            f"{USER_HAND}{name}": torch.frombuffer(bytearray(pack(ref)), dtype=torch.uint8)
+            for name, ref in zip(self.embodiments, self.hand_refs, strict=True)
+            if ref not in builtin_hands()
+        }
+
+    def load_user_hands(self, state: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        """Unpacks the user hands `state` carries and points the step (its hand references, joint maps and
+        the GaLR's registry) at them; returns the rest of `state`."""
+        for key in [k for k in state if k.startswith(USER_HAND)]:
+            index = self.embodiments.index(key.removeprefix(USER_HAND))
+            spec = str(unpack(state.pop(key).numpy().tobytes()))
+            self.hand_refs[index] = self.joint_maps[index]["hand"] = spec
+            self.maps[index] = JointMap.from_dict(self.joint_maps[index], self.maps[index].source)
+            self._hands.pop(index, None)
+            if self.galr is not None:
+                relocate_hand(self.galr, self.embodiments[index], spec)
+        return state
+
     def single_id(self, ids: torch.Tensor) -> int:
         unique = ids.unique()
         if len(unique) != 1:
@@ -342,10 +368,10 @@ class OpfaEncodeJointsStep(_HandSpace, ProcessorStep):
         return {**self.config_dict(), "hand": self.hand, "use_cached_latents": self.use_cached_latents}
 
     def state_dict(self) -> dict[str, torch.Tensor]:
-        return self.galr_state("encoder.")
+        return self.galr_state("encoder.") | self.user_hands()
 
     def load_state_dict(self, state: dict[str, torch.Tensor]) -> None:
-        self.load_galr_state(state, "encoder.")
+        self.load_galr_state(self.load_user_hands(state), "encoder.")
 
     def transform_features(self, features):
         width = self.policy_width
@@ -377,10 +403,10 @@ class OpfaDecodeJointsStep(_HandSpace, ProcessorStep):
         return self.config_dict()
 
     def state_dict(self) -> dict[str, torch.Tensor]:
-        return self.galr_state("decoder.")
+        return self.galr_state("decoder.") | self.user_hands()
 
     def load_state_dict(self, state: dict[str, torch.Tensor]) -> None:
-        self.load_galr_state(state, "decoder.")
+        self.load_galr_state(self.load_user_hands(state), "decoder.")
 
     def transform_features(self, features):
         return features
