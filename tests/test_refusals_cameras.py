@@ -117,6 +117,19 @@ def test_frames_of_another_size_than_the_calibrations_are_refused_naming_the_cam
         step.observation({k: frame[k] for k in KEYS})
 
 
+def test_the_simulated_rig_writes_the_size_of_its_frames_into_its_calibration(tmp_path):
+    from lerobot_opfa.rig.robot import OpfaSimRobot, OpfaSimRobotConfig
+
+    robot = OpfaSimRobot(OpfaSimRobotConfig(hand="umi", calibration_dir=tmp_path, width=96, height=64))
+    robot.connect()
+    try:
+        depth = robot.get_observation()["front_depth"]
+        written = DepthRig.load(robot.cameras_file).cameras["observation.images.front_depth"]
+    finally:
+        robot.disconnect()
+    assert depth.shape == (64, 96, 1) and (written.width, written.height) == (96, 64)
+
+
 def test_a_calibration_without_the_image_size_says_which_keys_to_add(rig, tmp_path):
     _, calibration = rig
     for camera in calibration["cameras"].values():
