@@ -137,7 +137,7 @@ def user_spec(request, user_shadow_spec, user_allegro_spec) -> Path:
 
 
 def _lerobot(exe: str, *args: str) -> None:
-    result = run_command([str(Path(sys.executable).parent / exe), *args], env=ENV, text=True, timeout=600)
+    result = run_command([str(Path(sys.executable).parent / exe), *args], env=ENV, timeout=600)
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
 
 
