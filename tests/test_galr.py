@@ -244,7 +244,7 @@ def test_resume_continues_from_the_same_step(tmp_path):
 
 def _cli(*args: str) -> subprocess.CompletedProcess:
     exe = Path(sys.executable).parent / "lerobot-opfa"
-    return run_command([str(exe), *args], text=True, timeout=600)
+    return run_command([str(exe), *args], timeout=600)
 
 
 def test_cli_pretrain_eval_embed_decode(tmp_path):
