@@ -120,14 +120,10 @@ def _publish(partial: Path, output: Path, overwrite: bool, old: Path) -> None:
         output.rename(old)
     try:
         if not overwrite and output.exists():
-            raise FileExistsError
+            raise FileExistsError(errno.EEXIST, os.strerror(errno.EEXIST))
         partial.rename(output)
     except OSError as err:
-        if not isinstance(err, FileExistsError) and err.errno not in (
-            errno.EEXIST,
-            errno.ENOTEMPTY,
-            errno.ENOTDIR,
-        ):
+        if err.errno not in (errno.EEXIST, errno.ENOTEMPTY, errno.ENOTDIR):
             raise
         raise FileExistsError(
             f"{output} appeared while this run was writing it (another run given the same output?); it is "

@@ -191,14 +191,14 @@ class JointMap:
         """Refuses a map for another hand than the one the dataset's `robot_type` names (`inspire`, or a word
         of `arm_inspire`), unless the map confirms that robot_type: the policy would learn the wrong hand
         without a word."""
-        named = hands_named_in(robot_type)
-        hand = self.spec.name
+        named, hand = hands_named_in(robot_type), self.spec.name
         if not named or hand in named or self.robot_type == robot_type:
             return
+        other = max(named, key=len)  # `inspire_tactile` rather than the `inspire` inside it
         raise JointMapError(
             f"{self.source}: maps hand '{hand}', but the dataset's robot_type '{robot_type}' names hand "
-            f"'{named[-1]}'; use a map for '{named[-1]}', or, if this robot does carry '{hand}', confirm it "
-            f"with the line `robot_type: {robot_type}` in the map"
+            f"'{other}'; use a map for '{other}', or, if this robot does carry '{hand}', confirm it with the "
+            f"line `robot_type: {robot_type}` in the map"
         )
 
     def check_spans(self, x: torch.Tensor, key: str, lower: torch.Tensor, upper: torch.Tensor) -> None:
@@ -206,7 +206,9 @@ class JointMap:
         `upper`: the hand's limits in spec order) while its entry as recorded spans more, within those
         limits: a degrees scale on entries already in radians, which the limit check lets through."""
         names, by_joint = self.names(key), {j.joint: (e, j) for e, j in self.joints.items()}
-        x = x.detach().to("cpu", torch.float64)
+        x = x.detach().to("cpu", torch.float64).reshape(-1, x.shape[-1])
+        if not len(x):
+            return
         for i, joint in enumerate(self.spec.actuated_joints):
             entry, mapped = by_joint[joint]
             raw, low, high = x[:, names.index(entry)], float(lower[i]), float(upper[i])
