@@ -202,7 +202,7 @@ def test_map_errors_are_one_line_naming_the_map_and_the_entry(rigs, tmp_path):
     with pytest.raises(JointMapError, match="scale must be finite and non-zero"):
         JointMap.load(tmp_path / "scale.yaml")
     (tmp_path / "bad.yaml").write_text("hand: inspire\njoints: [\n")
-    with pytest.raises(JointMapError, match="bad.yaml is not valid YAML"):
+    with pytest.raises(JointMapError, match="bad.yaml: line 3, column 1: not valid YAML"):
         JointMap.load(tmp_path / "bad.yaml")
 
 

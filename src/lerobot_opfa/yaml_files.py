@@ -44,9 +44,11 @@ def read_yaml(path: Path | str, what: str = "file") -> Any:
     except yaml.MarkedYAMLError as err:
         mark = err.problem_mark or err.context_mark
         place = f" line {mark.line + 1}, column {mark.column + 1}" if mark else ""
-        problem = err.problem or err.context or "not valid YAML"
+        problem = err.problem or err.context or ""
         if "'\\t'" in problem or "tab" in problem:
             problem = "a tab character; YAML indents with spaces only"
+        elif not isinstance(err, yaml.constructor.ConstructorError):
+            problem = f"not valid YAML ({problem})"
         raise YamlFileError(f"{what} {path}:{place}: {problem}") from None
     except yaml.YAMLError as err:
         raise YamlFileError(f"{what} {path}: not valid YAML ({' '.join(str(err).split())})") from None
