@@ -312,3 +312,33 @@ def test_a_policy_trained_on_a_user_hand_acts_after_the_checkpoint_moved_and_the
     assert action.shape == (1, frame["action"].shape[0]) and torch.isfinite(action).all()
     unpacked = list((tmp_path / "hf_home" / "lerobot_opfa" / "hands").glob("*/spec.yaml"))
     assert len(unpacked) == 1 and list(unpacked[0].parent.glob("model/stls/hand/*.stl"))
+
+
+def test_packaged_galr_checkpoints_find_their_builtin_hands_by_name_not_by_the_recorded_paths():
+    """The packaged checkpoints record the spec paths of the machine that trained them; built-in hands are
+    found by name, so those paths never need to exist."""
+    import torch
+
+    from lerobot_opfa.galr import checkpoints
+    from lerobot_opfa.galr.frozen import encode_joints, galr_hand_refs, known_hand_refs
+    from lerobot_opfa.hands import load_hand
+
+    for name in checkpoints.PACKAGED:
+        galr = checkpoints.load(name)
+        for record in galr.config.hands:
+            record["spec"] = f"/nowhere/{record['name']}/spec.yaml"
+        assert galr_hand_refs(galr) == galr.config.hand_names
+        assert not any(ref.startswith("/nowhere") for ref in known_hand_refs(galr))
+        z = encode_joints(galr, "inspire", load_hand("inspire").pose("open")[None])
+        assert z.shape == (1, galr.config.latent_dim) and torch.isfinite(z).all()
+
+
+def test_a_missing_spec_path_is_named_as_missing_and_a_mistyped_name_gets_the_closest():
+    from lerobot_opfa.hands.registry import resolve_spec_path
+
+    with pytest.raises(ValueError, match=r"^hand spec /nowhere/spec.yaml not found \(the built-in hands: "):
+        resolve_spec_path("/nowhere/spec.yaml")
+    with pytest.raises(
+        ValueError, match=r"^unknown hand 'inspyre' \(did you mean 'inspire'\?\): not a built-in"
+    ):
+        resolve_spec_path("inspyre")
