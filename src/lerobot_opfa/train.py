@@ -156,7 +156,7 @@ def _check_resumable(checkpoints: Path, name: str, flag: str) -> None:
     if incomplete and (not target.exists() or target.resolve() in {p.resolve() for p in incomplete}):
         raise ValueError(
             f"{flag}: checkpoint {incomplete[-1].name} is incomplete (the run was killed while saving it"
-            f"{'' if target.exists() else f', before {target} was made'}); "
+            f"{f', before {target} was made' if name == 'last' and not target.exists() else ''}); "
             f"{_how_to_go_on(checkpoints, incomplete)}"
         )
 
