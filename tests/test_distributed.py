@@ -49,11 +49,20 @@ def train(command: str, demos: Path, out: Path, processes: int) -> str:
     return done.stdout + done.stderr
 
 
+@pytest.fixture(scope="module")
+def one_process(demos, tmp_path_factory) -> str:
+    """LeRobot's own loop on one process with the doubled batch: both commands' two-process runs must match
+    it (`lerobot-opfa train` serves the same batches as `lerobot-train`: test_training_fast)."""
+    return train("lerobot-train", demos, tmp_path_factory.mktemp("distributed") / "one", processes=1)
+
+
 @pytest.mark.parametrize("command", list(COMMANDS))
-def test_two_processes_train_as_one_with_the_doubled_batch_and_the_checkpoint_acts(demos, tmp_path, command):
+def test_two_processes_train_as_one_with_the_doubled_batch_and_the_checkpoint_acts(
+    demos, one_process, tmp_path, command
+):
     two = train(command, demos, tmp_path / "two", processes=2)
     assert f"Effective batch size: {BATCH} x 2 = {2 * BATCH}" in two  # both ranks joined the process group
-    one = train(command, demos, tmp_path / "one", processes=1)
+    one = one_process
     losses = [{int(s): float(v) for s, v in LOSS.findall(log)} for log in (two, one)]
     assert sorted(losses[0]) == sorted(losses[1]) == list(range(1, STEPS + 1))
     relative = [abs(losses[0][s] - losses[1][s]) / losses[1][s] for s in losses[1]]

@@ -136,23 +136,34 @@ def test_a_later_checkpoint_killed_while_saving_says_what_to_delete_and_resume_f
 
 
 # --- a mistyped hand in LeRobot's own commands -----------------------------------------------------------
-def test_a_mistyped_hand_in_lerobot_eval_is_one_line_naming_the_flag_and_the_closest_hand(trained):
+def _lerobot_refused(script: str, argv: list[str], capsys, monkeypatch) -> list[str]:
+    """The lines LeRobot's entry point `script` (run in this process: its flags are refused while they are
+    parsed, before any work) ends with."""
+    import importlib
+
+    main = importlib.import_module(f"lerobot.scripts.{script}").main
+    monkeypatch.setattr(sys, "argv", [script, *argv])
+    with pytest.raises(SystemExit) as exit_info:
+        main()
+    err = capsys.readouterr().err
+    assert exit_info.value.code not in (0, None) and "Traceback" not in err, err
+    return err.strip().splitlines()
+
+
+def test_a_mistyped_hand_in_lerobot_eval_is_one_line_naming_the_flag_and_the_closest_hand(
+    trained, capsys, monkeypatch
+):
     policy = trained / "checkpoints" / "last" / "pretrained_model"
-    line = _refused(_run("lerobot-eval", f"--policy.path={policy}", "--env.type=opfa", "--env.hand=inspyre"))
+    argv = [f"--policy.path={policy}", "--env.type=opfa", "--env.hand=inspyre"]
+    line = _lerobot_refused("lerobot_eval", argv, capsys, monkeypatch)[-1]
     assert line.startswith("error: `env.hand`: unknown hand 'inspyre' (did you mean 'inspire'?)"), line
 
 
-def test_a_mistyped_hand_in_lerobot_rollout_is_refused_cause_first(trained, tmp_path):
+def test_a_mistyped_hand_in_lerobot_rollout_is_refused_cause_first(trained, tmp_path, capsys, monkeypatch):
     policy = trained / "checkpoints" / "last" / "pretrained_model"
-    result = _run(
-        "lerobot-rollout",
-        "--robot.type=opfa_sim",
-        "--robot.hand=inspyre",
-        f"--robot.calibration_dir={tmp_path}",
-        f"--policy.path={policy}",
-        "--duration=1",
-    )
-    line = _refused(result)
+    argv = ["--robot.type=opfa_sim", "--robot.hand=inspyre", f"--robot.calibration_dir={tmp_path}",
+            f"--policy.path={policy}", "--duration=1"]  # fmt: skip
+    line = _lerobot_refused("lerobot_rollout", argv, capsys, monkeypatch)[-1]
     assert line.lstrip().startswith("RobotConfig: `hand`: unknown hand 'inspyre' (did you mean 'inspire'?)")
     assert len(line) < 250, line
 
