@@ -7,6 +7,7 @@ import ast
 import sys
 from pathlib import Path
 
+import pytest
 from subprocesses import run_command
 
 SRC = Path(__file__).parents[1] / "src" / "lerobot_opfa"
@@ -29,10 +30,12 @@ def _imports(path: Path) -> set[str]:
     }
 
 
-def test_no_simulator_module_imports_the_policy():
+@pytest.mark.parametrize("layer", ["envs", "datasets"])
+def test_no_simulator_or_dataset_module_imports_the_policy(layer):
+    """The simulator knows nothing of the learner, and datasets sit below the policy (docs/design.md)."""
     offenders = {
         str(path.relative_to(SRC)): sorted(m for m in _imports(path) if m.startswith("lerobot_opfa.policy"))
-        for path in sorted((SRC / "envs").glob("*.py"))
+        for path in sorted((SRC / layer).glob("*.py"))
     }
     assert {k: v for k, v in offenders.items() if v} == {}
 

@@ -184,11 +184,12 @@ class DepthRig:
                 + (f" ({hint})" if hint else "")
             )
 
-    def check_frame(self, depths: dict[str, np.ndarray]) -> None:
-        """A dataset's first frame of every camera ((H, W) depth in `depth_unit`) shows the workspace: enough
-        occupied voxels, and no camera whose inverse pose explains its frame far better (a pose given
-        world-to-camera). Run before any work: a wrong calibration would otherwise train a policy on clouds
-        of the wrong place."""
+    def check_frame(self, depths: dict[str, Any]) -> None:
+        """A dataset's first frame of every camera (as LeRobot or a robot serves it, `depth_frames`) shows
+        the workspace: enough occupied voxels, and no camera whose inverse pose explains its frame far better
+        (a pose given world-to-camera). Run before any work: a wrong calibration would otherwise train a
+        policy on clouds of the wrong place."""
+        depths = {key: depth_frames(depths[key], key) for key in self.cameras}
         scale = DEPTH_UNITS[self.depth_unit]
         for key, camera in self.cameras.items():
             depth = self._checked(key, camera, depths[key]) * scale
@@ -241,12 +242,41 @@ class DepthRig:
             raise self._blind("no point")
         return downsample(points, n_points, rng, self.workspace)
 
+    def clouds(self, depths: dict[str, Any], n_points: int, rng: np.random.Generator) -> np.ndarray:
+        """The clouds (..., n_points * 3) of frames as LeRobot or a robot serves them (`depth_frames`, any
+        leading batch/history dims): what a dataset's `dataset clouds` and a policy's depth step make."""
+        frames = {key: depth_frames(depths[key], key) for key in self.cameras}
+        lead = next(iter(frames.values())).shape[:-2]
+        if any(v.shape[:-2] != lead for v in frames.values()):
+            shapes = ", ".join(f"{k}: {tuple(v.shape)}" for k, v in frames.items())
+            raise DepthRigError(f"the depth frames disagree on their batch/history dims ({shapes})")
+        flat = {k: v.reshape(-1, *v.shape[-2:]) for k, v in frames.items()}
+        clouds = [
+            self.cloud({k: v[i] for k, v in flat.items()}, n_points, rng)
+            for i in range(int(np.prod(lead, dtype=np.int64)))
+        ]
+        return np.stack(clouds).reshape(*lead, 3 * n_points)
+
     def _blind(self, found: str) -> DepthRigError:
         return DepthRigError(
             f"the depth frames of {', '.join(self.cameras)} put {found} in the workspace "
             f"{list(self.workspace.low)}..{list(self.workspace.high)} (check each camera's "
             f"camera_to_world, the depth_unit '{self.depth_unit}' and the workspace in {self.source})"
         )
+
+
+def depth_frames(depth: Any, key: str) -> np.ndarray:
+    """Depth frames (..., H, W) as float64: LeRobot gives (..., 1, H, W) tensors, a robot (H, W, 1) arrays."""
+    array = depth.detach().cpu().numpy() if hasattr(depth, "detach") else np.asarray(depth)
+    if array.ndim >= 3 and array.shape[-3] == 1:
+        array = array[..., 0, :, :]
+    elif array.ndim == 3 and array.shape[-1] == 1:
+        array = array[..., 0]
+    if array.ndim < 2:
+        raise DepthRigError(
+            f"{key}: a depth frame needs shape (H, W), (1, H, W) or (H, W, 1), got {array.shape}"
+        )
+    return array.astype(np.float64)
 
 
 @functools.lru_cache(maxsize=16)

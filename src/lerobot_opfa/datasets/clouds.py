@@ -10,7 +10,6 @@ import json
 from pathlib import Path
 
 import numpy as np
-import torch
 from lerobot.datasets.dataset_metadata import LeRobotDatasetMetadata
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from tqdm import tqdm
@@ -20,7 +19,6 @@ from lerobot_opfa.datasets.layout import OPFA_META_FILE, opfa_record
 from lerobot_opfa.datasets.merge import BOOKKEEPING, NUMERIC
 from lerobot_opfa.features import OBS_POINTCLOUD
 from lerobot_opfa.pointclouds import DepthRig, DepthRigError
-from lerobot_opfa.policy.depth_step import DepthToPointCloudStep, check_frame
 
 CLOUDS_OF_DEPTH = "opfa_clouds_of_depth"
 """The point-cloud feature's `info` entry naming the depth cameras its clouds were made from: LeRobot's
@@ -37,10 +35,10 @@ def cloud_dataset(
     rig = DepthRig.load(cameras)
     rig.check_keys(frames.meta.features, str(source))
     try:
-        check_frame(rig, frames[0])
+        rig.check_frame(frames[0])
     except DepthRigError as err:
         raise DepthRigError(f"{source}, frame 0: {err}") from None
-    step = DepthToPointCloudStep(rig=rig.to_dict(), n_points=n_points)
+    rng = np.random.default_rng(0)
     numeric = [k for k, f in frames.meta.features.items() if f["dtype"] in NUMERIC and k not in BOOKKEEPING]
     features = {
         k: {**frames.meta.features[k], "shape": tuple(frames.meta.features[k]["shape"])} for k in numeric
@@ -59,9 +57,9 @@ def cloud_dataset(
                 rows = np.flatnonzero(episodes == episode)
                 for row in rows[np.argsort(columns["frame_index"][rows])]:
                     item = frames[position[int(columns["index"][row])]]
-                    cloud = step.observation({k: item[k] for k in rig.cameras})[OBS_POINTCLOUD]
+                    cloud = rig.clouds({k: item[k] for k in rig.cameras}, n_points, rng)
                     frame = {k: _value(columns[k][row], features[k]) for k in numeric}
-                    frame[OBS_POINTCLOUD] = cloud.to(torch.float32).numpy()
+                    frame[OBS_POINTCLOUD] = cloud.astype(np.float32)
                     frame["task"] = tasks[int(columns["task_index"][row])]
                     dataset.add_frame(frame)
                     progress.update()

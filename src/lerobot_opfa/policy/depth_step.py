@@ -43,17 +43,8 @@ class DepthToPointCloudStep(ObservationProcessorStep):
                 f"the observation has no depth frames {missing} (it has {', '.join(observation)}); this "
                 "policy makes its cloud from the cameras it was trained with"
             )
-        frames = {k: _frames(observation.pop(k), k) for k in keys}
-        lead = next(iter(frames.values())).shape[:-2]
-        flat = {k: v.reshape(-1, *v.shape[-2:]) for k, v in frames.items()}
-        if any(v.shape[:-2] != lead for v in frames.values()):
-            shapes = ", ".join(f"{k}: {tuple(v.shape)}" for k, v in frames.items())
-            raise ValueError(f"the depth frames disagree on their batch/history dims ({shapes})")
-        clouds = [
-            self.depth_rig.cloud({k: v[i] for k, v in flat.items()}, self.n_points, self.rng)
-            for i in range(int(np.prod(lead, dtype=np.int64)))
-        ]
-        observation[OBS_POINTCLOUD] = torch.from_numpy(np.stack(clouds).reshape(*lead, 3 * self.n_points))
+        depths = {k: observation.pop(k) for k in keys}
+        observation[OBS_POINTCLOUD] = torch.from_numpy(self.depth_rig.clouds(depths, self.n_points, self.rng))
         return observation
 
     def get_config(self) -> dict[str, Any]:
@@ -68,22 +59,3 @@ class DepthToPointCloudStep(ObservationProcessorStep):
             observation.pop(key, None)
         observation[OBS_POINTCLOUD] = PolicyFeature(FeatureType.STATE, (3 * self.n_points,))
         return {**features, PipelineFeatureType.OBSERVATION: observation}
-
-
-def check_frame(rig: DepthRig, frame: dict[str, Any]) -> None:
-    """A dataset's frame as LeRobot serves it, judged before any work (`DepthRig.check_frame`)."""
-    rig.check_frame({k: _frames(frame[k], k) for k in rig.cameras})
-
-
-def _frames(depth: Any, key: str) -> np.ndarray:
-    """Depth frames (..., H, W) as float64: LeRobot gives (..., 1, H, W), a robot (H, W, 1) in its unit."""
-    array = depth.detach().cpu().numpy() if isinstance(depth, torch.Tensor) else np.asarray(depth)
-    if array.ndim >= 3 and array.shape[-3] == 1:
-        array = array[..., 0, :, :]
-    elif array.ndim == 3 and array.shape[-1] == 1:
-        array = array[..., 0]
-    if array.ndim < 2:
-        raise ValueError(
-            f"{key}: a depth frame needs shape (H, W), (1, H, W) or (H, W, 1), got {array.shape}"
-        )
-    return array.astype(np.float64)

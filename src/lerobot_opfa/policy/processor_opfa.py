@@ -51,7 +51,7 @@ from lerobot_opfa.hands.universal import UNIVERSAL_JOINT_NAMES
 from lerobot_opfa.pointclouds import DepthRig, DepthRigError
 from lerobot_opfa.policy.action_spaces import universal_mask
 from lerobot_opfa.policy.configuration_opfa import OpfaConfig
-from lerobot_opfa.policy.depth_step import DepthToPointCloudStep, check_frame
+from lerobot_opfa.policy.depth_step import DepthToPointCloudStep
 from lerobot_opfa.policy.joint_steps import OpfaDecodeJointsStep, OpfaEncodeJointsStep, PointCloudBatchStep
 from lerobot_opfa.policy.normalization import OpfaNormalizeStep, OpfaUnnormalizeStep, affine_tables
 
@@ -246,7 +246,7 @@ def depth_step(config: OpfaConfig, meta: Any) -> DepthToPointCloudStep | None:
     rig = DepthRig.load(config.cameras)
     rig.check_keys(meta.features, str(meta.root))
     try:
-        check_frame(rig, LeRobotDataset(meta.repo_id, root=meta.root, episodes=[0])[0])
+        rig.check_frame(LeRobotDataset(meta.repo_id, root=meta.root, episodes=[0])[0])
     except DepthRigError as err:
         raise DepthRigError(f"{meta.root}, frame 0: {err}") from None
     return DepthToPointCloudStep(rig=rig.to_dict(), n_points=config.cloud_points)
