@@ -30,6 +30,13 @@ def _cli(*args: str) -> subprocess.CompletedProcess:
     return run_command([exe, *args], timeout=300)
 
 
+def _cli_here(capsys, *args: str) -> subprocess.CompletedProcess:
+    """`lerobot-opfa` run in this process (`test_hands_list_json` runs the installed command)."""
+    code = cli.main(list(args))
+    out = capsys.readouterr()
+    return subprocess.CompletedProcess(["lerobot-opfa", *args], code, out.out, out.err)
+
+
 def test_hands_list_json():
     result = _cli("hands", "list", "--json")
     assert result.returncode == 0, result.stderr
@@ -39,9 +46,10 @@ def test_hands_list_json():
     assert rows["umi"]["fingers"] == ["palm", "thumb", "index"]
 
 
-def test_hands_cloud_npz(tmp_path, user_allegro_spec):
+def test_hands_cloud_npz(tmp_path, user_allegro_spec, capsys):
     out = tmp_path / "cloud.npz"
-    result = _cli(
+    result = _cli_here(
+        capsys,
         "hands",
         "cloud",
         str(user_allegro_spec),
@@ -62,15 +70,15 @@ def test_hands_cloud_npz(tmp_path, user_allegro_spec):
 
 
 @pytest.mark.parametrize("joints", ["open", "random"])
-def test_hands_show_png(tmp_path, joints):
+def test_hands_show_png(tmp_path, joints, capsys):
     out = tmp_path / "hand.png"
-    result = _cli("hands", "show", "umi", "--out", str(out), "--joints", joints)
+    result = _cli_here(capsys, "hands", "show", "umi", "--out", str(out), "--joints", joints)
     assert result.returncode == 0, result.stderr
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-def test_unknown_hand_lists_builtins():
-    result = _cli("hands", "cloud", "no_such_hand", "--out", "x.npz")
+def test_unknown_hand_lists_builtins(capsys):
+    result = _cli_here(capsys, "hands", "cloud", "no_such_hand", "--out", "x.npz")
     assert result.returncode == 2
     assert "unknown hand 'no_such_hand'" in result.stderr and "umi" in result.stderr
 

@@ -247,7 +247,16 @@ def _cli(*args: str) -> subprocess.CompletedProcess:
     return run_command([str(exe), *args], timeout=600)
 
 
-def test_cli_pretrain_eval_embed_decode(tmp_path):
+def _cli_here(capsys, *args: str) -> subprocess.CompletedProcess:
+    """`lerobot-opfa` run in this process (its pretraining runs as a command, above)."""
+    from lerobot_opfa import cli
+
+    code = cli.main(list(args))
+    out = capsys.readouterr()
+    return subprocess.CompletedProcess(["lerobot-opfa", *args], code, out.out, out.err)
+
+
+def test_cli_pretrain_eval_embed_decode(tmp_path, capsys):
     run = tmp_path / "galr"
     result = _cli("galr", "pretrain", "--hands", "umi,inspire", "--steps", "3", "--batch-size", "4",
                   "--validate-every", "3", "--output-dir", str(run), "--model", *TINY_ARGS)  # fmt: skip
@@ -255,8 +264,8 @@ def test_cli_pretrain_eval_embed_decode(tmp_path):
     assert (run / "model.safetensors").is_file() and (run / "checkpoints" / "step_0000003").is_dir()
 
     report_path, plot = tmp_path / "eval.json", tmp_path / "eval.png"
-    result = _cli("galr", "eval", "--checkpoint", str(run), "--states", "8", "--json", str(report_path),
-                  "--plot", str(plot), "--clouds", str(tmp_path / "clouds.png"))  # fmt: skip
+    result = _cli_here(capsys, "galr", "eval", "--checkpoint", str(run), "--states", "8", "--json",
+                       str(report_path), "--plot", str(plot), "--clouds", str(tmp_path / "clouds.png"))  # fmt: skip
     assert result.returncode == 0, result.stderr[-2000:]
     report = json.loads(report_path.read_text())
     assert set(report["hands"]) == {"umi", "inspire"}
@@ -270,14 +279,14 @@ def test_cli_pretrain_eval_embed_decode(tmp_path):
     joints = _joints("inspire", 5).numpy()
     np.save(tmp_path / "q.npy", joints)
     q_file = str(tmp_path / "q.npy")
-    result = _cli("galr", "embed", "--checkpoint", str(run), "--hand", "inspire", "--joints", q_file,
-                  "--out", str(tmp_path / "z.npy"))  # fmt: skip
+    result = _cli_here(capsys, "galr", "embed", "--checkpoint", str(run), "--hand", "inspire", "--joints",
+                       q_file, "--out", str(tmp_path / "z.npy"))  # fmt: skip
     assert result.returncode == 0, result.stderr[-2000:]
     assert np.load(tmp_path / "z.npy").shape == (5, 16)
-    result = _cli("galr", "decode", "--checkpoint", str(run), "--hand", "inspire", "--latents",
-                  str(tmp_path / "z.npy"), "--out", str(tmp_path / "q_hat.npy"))  # fmt: skip
+    result = _cli_here(capsys, "galr", "decode", "--checkpoint", str(run), "--hand", "inspire", "--latents",
+                       str(tmp_path / "z.npy"), "--out", str(tmp_path / "q_hat.npy"))  # fmt: skip
     assert result.returncode == 0, result.stderr[-2000:]
     assert np.load(tmp_path / "q_hat.npy").shape == (5, 6)
-    result = _cli("galr", "embed", "--checkpoint", str(run), "--hand", "leap", "--joints", q_file,
-                  "--out", str(tmp_path / "bad.npy"))  # fmt: skip
+    result = _cli_here(capsys, "galr", "embed", "--checkpoint", str(run), "--hand", "leap", "--joints",
+                       q_file, "--out", str(tmp_path / "bad.npy"))  # fmt: skip
     assert result.returncode == 2 and "not in this GaLR checkpoint's registry" in result.stderr
