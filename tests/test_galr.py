@@ -264,8 +264,9 @@ def test_cli_pretrain_eval_embed_decode(tmp_path, capsys):
     assert (run / "model.safetensors").is_file() and (run / "checkpoints" / "step_0000003").is_dir()
 
     report_path, plot = tmp_path / "eval.json", tmp_path / "eval.png"
+    clouds = str(tmp_path / "clouds.png")
     result = _cli_here(capsys, "galr", "eval", "--checkpoint", str(run), "--states", "8", "--json",
-                       str(report_path), "--plot", str(plot), "--clouds", str(tmp_path / "clouds.png"))  # fmt: skip
+                       str(report_path), "--plot", str(plot), "--clouds", clouds)  # fmt: skip
     assert result.returncode == 0, result.stderr[-2000:]
     report = json.loads(report_path.read_text())
     assert set(report["hands"]) == {"umi", "inspire"}
