@@ -9,7 +9,7 @@ that joints move, and one posed copy of the links that none moves (a palm, a gri
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 from pathlib import Path
 
@@ -18,6 +18,7 @@ import pytorch_kinematics as pk
 import torch
 
 from lerobot_opfa.hands.geometry import allocate_points, sample_surface
+from lerobot_opfa.hands.labels import tree_labels
 from lerobot_opfa.hands.model_file import load_model_file
 from lerobot_opfa.hands.spec import HandSpec, HandSpecError
 from lerobot_opfa.hands.universal import UNIVERSAL_INDEX, UNIVERSAL_JOINTS
@@ -77,9 +78,12 @@ class HandModel:
             self.model_file = load_model_file(spec.model_path)
         except ValueError as err:
             raise HandSpecError(spec.path, "model", str(err)) from err
-        spec.check_against(
-            self.model_file.joint_names, self.model_file.link_names, set(self.model_file.link_meshes)
-        )
+        spec.check_joints(self.model_file.joint_names)
+        geometry_links = set(self.model_file.link_meshes)
+        # The labels of the links the spec leaves out, from the kinematic tree (`hands check` prints them).
+        self.inferred_links = tree_labels(spec, self.model_file.chain, geometry_links)
+        spec = replace(spec, links={**self.inferred_links, **spec.links})
+        spec.check_links(self.model_file.link_names, geometry_links)
         self.spec = spec
         self.device, self.dtype = torch.device(device), dtype
 
@@ -357,11 +361,12 @@ class HandModel:
     # --- fingertips ---------------------------------------------------------------------------------
     @cached_property
     def fingertip_links(self) -> list[str]:
-        """Each finger's (u >= 1) most distal link with geometry."""
+        """Each finger's (u >= 1) most distal link with geometry: the highest segment, and of links that share
+        it the last in the tree (a fingertip fixed to its distal link shares the distal link's segment)."""
         tips: dict[int, tuple[int, str]] = {}
         for link in self.link_names:
             u, v = self.spec.links[link]
-            if u > 0 and (u not in tips or v > tips[u][0]):
+            if u > 0 and (u not in tips or v >= tips[u][0]):
                 tips[u] = (v, link)
         return [tips[u][1] for u in sorted(tips)]
 

@@ -1,8 +1,9 @@
 """`spec.yaml`: how lerobot-opfa reads a hand model (joint mapping, couplings, link semantics, poses, and
 where the documented hand frame sits in a vendor's model).
 
-The spec is checked twice: on its own when loaded (`HandSpec.load`) and against the model's joints and
-links when a `HandModel` is built (`HandSpec.check_against`). Every error names the file and the field.
+The spec is checked twice: on its own when loaded (`HandSpec.load`) and against the model when a `HandModel`
+is built (`check_joints`; the links the spec leaves out labelled from the kinematic tree, `hands.labels`;
+`check_links`). Every error names the file and the field.
 """
 
 from __future__ import annotations
@@ -62,7 +63,8 @@ class HandSpec:
     couplings: dict[str, Coupling]
     """Coupled model joint -> its coupling, in an order where every source comes first."""
     links: dict[str, tuple[int, int]]
-    """Model link -> semantic label (finger u, segment v)."""
+    """Model link -> semantic label (finger u, segment v): the spec's own table, which overrides the labels
+    the kinematic tree gives (`hands.labels`); a `HandModel`'s spec holds every link with geometry."""
     poses: dict[str, dict[str, float]] = field(default_factory=dict)
     signs: dict[str, float] = field(default_factory=dict)
     """Actuated joint -> -1 where the vendor's sense is the opposite of the universal table's."""
@@ -71,6 +73,8 @@ class HandSpec:
     ignored_links: tuple[str, ...] = ()
     """Links labelled `null`: their geometry is simulated but is not the hand (a forearm), so no cloud."""
     base: BaseFrame = field(default_factory=BaseFrame)
+    finger_roots: dict[int, str] = field(default_factory=dict)
+    """Finger u -> its first model joint or link, where the kinematic tree cannot tell (a gripper's jaws)."""
 
     @property
     def actuated_joints(self) -> list[str]:
@@ -141,6 +145,7 @@ class HandSpec:
         links, ignored = _parse_links(_mapping(raw, "links", path), path)
         poses = _parse_poses(_mapping(raw, "poses", path), joints, path)
         base = _parse_base(_mapping(raw, "base", path), path)
+        finger_roots = _parse_fingers(_mapping(raw, "fingers", path), path)
         description = str(raw.get("description", ""))
         return cls(
             path,
@@ -156,12 +161,12 @@ class HandSpec:
             fixed,
             ignored,
             base,
+            finger_roots,
         )
 
-    def check_against(self, joint_names: list[str], link_names: list[str], geometry_links: set[str]) -> None:
-        """Raise if the spec and the model disagree: every movable joint must be actuated or coupled,
-        every mapped name must exist, every link with geometry must carry a label and every labelled link
-        must have geometry (the cloud keeps its minimum of points on each)."""
+    def check_joints(self, joint_names: list[str]) -> None:
+        """Raise if the spec and the model's joints disagree: every movable joint must be actuated, coupled
+        or held, and every joint the spec names must exist."""
         model_joints = set(joint_names)
         sources = {c.source for c in self.couplings.values()}
         described = set(self.joints) | set(self.couplings) | set(self.fixed) | sources
@@ -188,18 +193,14 @@ class HandSpec:
                 f"model joint(s) {missing} are neither actuated ('joints'), coupled ('couplings') nor held "
                 "('fixed': for a wrist or forearm joint)",
             )
+
+    def check_links(self, link_names: list[str], geometry_links: set[str]) -> None:
+        """Raise if a labelled link is not in the model or carries no geometry (the cloud keeps its minimum
+        of points on each); a link with geometry and no label is the kinematic tree's to label."""
         unknown_links = sorted((set(self.links) | set(self.ignored_links)) - set(link_names))
         if unknown_links:
             raise HandSpecError(
                 self.path, "links", f"unknown link(s) {unknown_links}; the model's links are {link_names}"
-            )
-        unlabelled = sorted(geometry_links - set(self.links) - set(self.ignored_links))
-        if unlabelled:
-            raise HandSpecError(
-                self.path,
-                "links",
-                f"link(s) {unlabelled} carry geometry but have no [finger, segment] label "
-                "(null: not the hand)",
             )
         bare = sorted(set(self.links) - geometry_links)
         if bare:
@@ -215,7 +216,10 @@ class HandSpec:
             )
 
 
-FIELDS = ("name", "kind", "model", "description", "base", "joints", "couplings", "fixed", "links", "poses")
+FIELDS = (
+    *("name", "kind", "model", "description", "base"),
+    *("joints", "couplings", "fixed", "fingers", "links", "poses"),
+)
 
 
 def _required(raw: dict, key: str, kind: type, path: Path):
@@ -320,9 +324,22 @@ def _find_cycle(pending: dict[str, Coupling]) -> list[str]:
     return seen[seen.index(joint) :] + [joint]
 
 
+def _parse_fingers(raw: dict, path: Path) -> dict[int, str]:
+    """`finger: joint or link` -> {finger u: that name}; the model is checked for it by `hands.labels`."""
+    roots: dict[int, str] = {}
+    for finger, root in raw.items():
+        where = f"fingers.{finger}"
+        if finger not in FINGERS[1:]:
+            raise HandSpecError(path, where, f"not a finger; expected one of {list(FINGERS[1:])}")
+        if not isinstance(root, str):
+            raise HandSpecError(path, where, f"expected the finger's first joint or link, got {root!r}")
+        if root in roots.values():
+            raise HandSpecError(path, where, f"'{root}' is already another finger's root")
+        roots[FINGERS.index(finger)] = root
+    return roots
+
+
 def _parse_links(raw: dict, path: Path) -> tuple[dict[str, tuple[int, int]], tuple[str, ...]]:
-    if not raw:
-        raise HandSpecError(path, "links", "map every link with geometry to [finger, segment]")
     links, ignored = {}, []
     for link, label in raw.items():
         if label is None:
@@ -332,8 +349,6 @@ def _parse_links(raw: dict, path: Path) -> tuple[dict[str, tuple[int, int]], tup
         if not ok or not 0 <= label[0] < len(FINGERS) or label[1] < 0:
             raise HandSpecError(path, f"links.{link}", f"expected [finger 0-5, segment >= 0], got {label!r}")
         links[str(link)] = (label[0], label[1])
-    if not links:
-        raise HandSpecError(path, "links", "at least one link must carry a [finger, segment] label")
     return links, tuple(ignored)
 
 

@@ -1,10 +1,11 @@
 """Checks that a hand model and its spec describe the same, sensible hand.
 
 `python -m lerobot_opfa.hands.validate SPEC [--png OUT]` (also `lerobot-opfa hands check`): builds the
-`HandModel` (which enforces the spec's structure), compares its FK with MuJoCo's own kinematics, checks
-that couplings keep coupled joints within their limits, says where the fingers point and the palm faces
-(warning when that is not the documented frame, or a flexion joint bends away from the palm), and draws the
-open and grasp poses.
+`HandModel` (which enforces the spec's structure), prints the link labels it took from the kinematic tree
+(those the spec's `links` leaves out), compares its FK with MuJoCo's own kinematics, checks that couplings
+keep coupled joints within their limits, says where the fingers point and the palm faces (warning when
+that is not the documented frame, or a flexion joint bends away from the palm), and draws the open and
+grasp poses coloured by finger (the labels from the tree included).
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from lerobot_opfa.hands.model import HandModel
 from lerobot_opfa.hands.mujoco_model import hand_mjspec
 from lerobot_opfa.hands.plot import plot_clouds
 from lerobot_opfa.hands.registry import load_hand
-from lerobot_opfa.hands.universal import UNIVERSAL_INDEX, UNIVERSAL_JOINTS
+from lerobot_opfa.hands.universal import FINGERS, UNIVERSAL_INDEX, UNIVERSAL_JOINTS
 
 LIMIT_TOLERANCE = 1e-3
 FRAME_TOLERANCE_DEG = 30.0
@@ -96,6 +97,21 @@ def flexion_moves(hand: HandModel) -> dict[str, np.ndarray]:
     return moves
 
 
+def label_lines(hand: HandModel) -> list[str]:
+    """The labels the kinematic tree gave the links the spec leaves out, one line per finger, so that a
+    vendor's anonymous links can be checked before any cloud is trained on them."""
+    if not hand.inferred_links:
+        return ["labels: all from the spec's `links`"]
+    segments: dict[int, dict[int, list[str]]] = {}
+    for link, (u, v) in hand.inferred_links.items():
+        segments.setdefault(u, {}).setdefault(v, []).append(link)
+    lines = [f"labels from the kinematic tree, {len(hand.inferred_links)} links (`links` overrides any):"]
+    for u, by_segment in sorted(segments.items()):
+        listed = "; ".join(f"v{v} {', '.join(links)}" for v, links in sorted(by_segment.items()))
+        lines.append(f"  {FINGERS[u]}: {listed}")
+    return lines
+
+
 def frame_report(hand: HandModel) -> tuple[list[str], list[str]]:
     """(lines saying where the hand lies in its frame, warnings where that is not the documented frame)."""
     cloud = hand.point_cloud(hand.pose("open")[None], 512)
@@ -154,6 +170,8 @@ def main(argv: list[str] | None = None) -> int:
     if position_error > 1e-5 or rotation_error > 1e-5:
         problems.append(f"FK disagrees with MuJoCo: {position_error:.2e} m, {rotation_error:.2e} rotation")
     print(f"{hand}\n  fingers: {hand.spec.fingers}")
+    for line in label_lines(hand):
+        print(f"  {line}")
     print(f"  FK vs MuJoCo: {position_error:.1e} m, {rotation_error:.1e}")
     mj = hand_mjspec(hand).compile()
     print(f"  MuJoCo: {mj.nbody} bodies, {mj.njnt} joints, {mj.nu} actuators, {mj.neq} couplings")
