@@ -109,3 +109,18 @@ def test_a_root_above_another_fingers_joints(tmp_path):
     spec = _allegro(tmp_path, fingers={"index": "palm_link"})
     with pytest.raises(HandSpecError, match=r"'fingers': joint\(s\) 'joint_4.0' \(middle\) below the index"):
         HandModel.from_spec(spec)
+
+
+def test_an_mjcf_hand_is_labelled_too(user_shadow_spec):
+    """gymnasium-robotics' Shadow with `links` down to its null entries: each link in the finger its explicit
+    table says, but the little finger's metacarpal, which LFJ4 (little_cmc_flex) moves and the table keeps in
+    the palm. Segments differ: the tree counts every moving joint, the table counts phalanges (a knuckle's
+    abduction joint starts none)."""
+    raw = yaml.safe_load(user_shadow_spec.read_text())
+    explicit = {link: label for link, label in raw["links"].items() if label is not None}
+    raw["links"] = {link: None for link, label in raw["links"].items() if label is None}
+    user_shadow_spec.write_text(yaml.safe_dump(raw))
+    hand = HandModel.from_spec(user_shadow_spec)
+    fingers = {link: u for link, (u, _) in hand.inferred_links.items()}
+    assert fingers == {link: u for link, (u, _) in explicit.items()} | {"robot0:lfmetacarpal": 5}
+    assert hand.inferred_links["robot0:ffdistal"] == (2, 3) and explicit["robot0:ffdistal"] == [2, 2]
