@@ -67,6 +67,10 @@ def train(argv: list[str]) -> None:
         torch.set_num_threads(len(usable))
     _reuse_freed_memory()
     make = _in_memory(lerobot_train.make_train_eval_datasets)
+    # LeRobot 0.6.1 offers no seam for any of the three, so they are swapped for this call only:
+    # - `train()` calls the module's `make_train_eval_datasets` by name and takes no dataset or factory;
+    # - `parser.wrap()` reads `sys.argv` itself (no argv parameter), as do `get_path_arg`'s callers;
+    # - draccus's error for a config's `__post_init__` hides the cause (`_parse_showing_cause`).
     with (
         mock.patch.object(lerobot_train, "make_train_eval_datasets", make),
         mock.patch.object(draccus, "parse", _parse_showing_cause(draccus.parse)),
