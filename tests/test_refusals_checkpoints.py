@@ -15,6 +15,7 @@ from subprocesses import run_command
 
 from lerobot_opfa import cli
 from lerobot_opfa.datasets.synthetic import write_synthetic_dataset
+from lerobot_opfa.experiments.scales import get_scale
 
 ENV = {
     **os.environ,
@@ -28,13 +29,7 @@ TINY = [
     "--policy.action_space=raw",
     "--policy.device=cpu",
     "--policy.push_to_hub=false",
-    "--policy.down_dims=[16,32]",
-    "--policy.horizon=8",
-    "--policy.n_action_steps=4",
-    "--policy.pointcloud_widths=[16,32]",
-    "--policy.pointcloud_feature_dim=16",
-    "--policy.n_groups=4",
-    "--policy.diffusion_step_embed_dim=16",
+    *get_scale("toy").policy_args,  # the experiments' tiny policy
     "--batch_size=4",
     "--log_freq=1",
     "--wandb.enable=false",
