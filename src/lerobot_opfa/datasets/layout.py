@@ -110,13 +110,13 @@ def opfa_record(root: Path | str | None) -> dict:
     return read_json(meta) if meta.is_file() else embedded_record(root) or {}
 
 
-def lost_record(features: dict, root: Path | str | None) -> str | None:
+def lost_record(features: dict, record: dict, root: Path | str | None) -> str | None:
     """Why a dataset cannot be read without the record it lost, or None: a merged dataset's cached latents
-    are of a GaLR only the record names (a dataset merged before `meta/info.json` kept a copy of it, then
-    edited with LeRobot's tools, which drop `meta/opfa.json`)."""
+    are of a GaLR only its record (`opfa_record`) names (a dataset merged before `meta/info.json` kept a copy,
+    then edited with LeRobot's tools, which drop `meta/opfa.json`)."""
     names = feature_names(features, OBS_STATE) if OBS_STATE in features else []
     cached = OBS_EMBODIMENT in features and latent_names(1)[0] in names
-    if not cached or root is None or opfa_record(root).get("galr_fingerprint"):
+    if not cached or root is None or record.get("galr_fingerprint"):
         return None
     return (
         f"{root} holds latents cached by `lerobot-opfa dataset merge --galr`, but not its {OPFA_META_FILE}, "
@@ -159,10 +159,10 @@ def read_layout(
     """The layout of a dataset from its features and what `meta/opfa.json` under `root` records. `hands`:
     the hands (names or spec paths) it may hold besides the built-ins and the ones it records; `joint_map`:
     how a native dataset holds its hand, when its entries are not named after the spec's joints."""
-    lost = lost_record(features, root)
+    record = opfa_record(root)
+    lost = lost_record(features, record, root)
     if lost:
         raise ValueError(lost)
-    record = opfa_record(root)
     # The hands the dataset records come first: a user's hand named like a built-in is the user's.
     candidates = [*recorded_hands(root, record).values(), *_hand_candidates(hands)]
     names = feature_names(features, OBS_STATE)
