@@ -3,8 +3,8 @@ training steps per second (GaLR space with cached latents, raw joints, GaLR enco
 diffusion) and latency per action chunk at batch 1 (horizon 16, 2 observation steps, 8 action steps,
 10 DDIM steps for both), split into preprocessor, `select_action` and postprocessor (opfa: GaLR decode),
 plus opfa's point encoder / U-Net loop / GaLR decode on their own; preprocessor and `select_action` per
-chunk of a batch-1 rollout (the preprocessor defers the GaLR encode of the hand state to the chunks that
-read it), and the same encoding every state; and opfa's same weights sampled through float32 weights
+chunk of a batch-1 rollout (the preprocessor encodes every hand state); and opfa's same weights sampled
+through float32 weights
 (`cpu_float16_weights=False`, with its largest action difference) and through the plain U-Net that
 training runs (`cpu_fast_sampling=False`).
 
@@ -38,7 +38,6 @@ from lerobot.datasets.lerobot_dataset import LeRobotDataset  # noqa: E402
 from lerobot.policies.factory import make_policy, make_pre_post_processors  # noqa: E402
 from lerobot.utils.feature_utils import dataset_to_policy_features  # noqa: E402
 
-from lerobot_opfa.datasets.latent import latent_dataset  # noqa: E402
 from lerobot_opfa.datasets.merge import merge_datasets  # noqa: E402
 from lerobot_opfa.datasets.synthetic import write_synthetic_dataset  # noqa: E402
 from lerobot_opfa.features import OBS_POINTCLOUD  # noqa: E402
@@ -46,6 +45,7 @@ from lerobot_opfa.galr.model import Galr, GalrConfig, hand_record  # noqa: E402
 from lerobot_opfa.hands import load_hand  # noqa: E402
 from lerobot_opfa.policy.configuration_opfa import OpfaConfig  # noqa: E402
 from lerobot_opfa.policy.joint_steps import OpfaDecodeJointsStep  # noqa: E402
+from lerobot_opfa.policy.stock import latent_dataset  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"
 HANDS = ["umi", "inspire", "leap"]
@@ -60,7 +60,7 @@ def build_data(root: Path, galr_path: str | None, n_points: int) -> str:
     for seed, hand in enumerate(HANDS):
         write_synthetic_dataset(root / hand, hand, episodes=3, frames=40, n_points=n_points, seed=seed)
     merge_datasets([root / h for h in HANDS], root / "merged", galr_path=galr_path)
-    latent_dataset(root / "merged", root / "latent")
+    latent_dataset(root / "merged", root / "latent", galr_path)
     return galr_path
 
 
@@ -168,11 +168,10 @@ def opfa_breakdown_ms(policy, pre, post, obs: dict, repeats: int) -> dict[str, f
     return {k: 1000 * statistics.median(v[2:]) for k, v in parts.items()}
 
 
-def rollout_chunk_ms(policy, pre, obs: dict, chunks: int, encode_every_state: bool) -> tuple[float, float]:
+def rollout_chunk_ms(policy, pre, obs: dict, chunks: int) -> tuple[float, float]:
     """Milliseconds per chunk of a batch-1 rollout, medians over `chunks` chunks: the preprocessor over the
     chunk's `n_action_steps` observations (a new hand state each) and `select_action` over them (the call
-    that samples the chunk included). `encode_every_state` computes each deferred state right after the
-    preprocessor, as every state was encoded before deferral."""
+    that samples the chunk included)."""
     per_chunk = policy.config.n_action_steps
     pre_ms, select_ms = [], []
     policy.reset()
@@ -183,8 +182,6 @@ def rollout_chunk_ms(policy, pre, obs: dict, chunks: int, encode_every_state: bo
             observation["observation.state"][6:] += 1e-3 * (step % 50)
             t0 = time.perf_counter()
             batch = pre(observation)
-            if encode_every_state:
-                batch["observation.state"] = batch["observation.state"].clone()
             t1 = time.perf_counter()
             policy.select_action(batch)
             t2 = time.perf_counter()
@@ -273,10 +270,8 @@ def main() -> None:
         print("opfa breakdown (ms):", {k: round(v, 2) for k, v in breakdown.items()})
         float16_error = chunk_difference(policy, built[float32][0], pre, obs)
         print(f"float16 vs float32 weights, largest action difference: {float16_error:.2e}")
-        deferred_pre, deferred_select = rollout_chunk_ms(policy, pre, obs, args.repeats, False)
-        every_pre, every_select = rollout_chunk_ms(policy, pre, obs, args.repeats, True)
-        print(f"per chunk: preprocessor {deferred_pre:.2f} ms, select_action {deferred_select:.2f} ms "
-              f"(encoding every state: {every_pre:.2f} ms, {every_select:.2f} ms)")  # fmt: skip
+        chunk_pre, chunk_select = rollout_chunk_ms(policy, pre, obs, args.repeats)
+        print(f"per chunk: preprocessor {chunk_pre:.2f} ms, select_action {chunk_select:.2f} ms")
 
     by = {r["variant"]: r for r in rows}
     opfa, raw, stock = (
@@ -312,13 +307,9 @@ def main() -> None:
         "float16_vs_float32_weights_max_action_difference": float16_error,
         "fast_vs_plain_sampling_select_action_speedup": by[plain]["select_action_ms"]
         / opfa["select_action_ms"],
-        "preprocessor_ms_per_chunk": deferred_pre,
-        "select_action_ms_per_chunk": deferred_select,
-        "preprocessor_vs_select_action_per_chunk": deferred_pre / deferred_select,
-        "encoding_every_state": {
-            "preprocessor_ms_per_chunk": every_pre,
-            "select_action_ms_per_chunk": every_select,
-        },
+        "preprocessor_ms_per_chunk": chunk_pre,
+        "select_action_ms_per_chunk": chunk_select,
+        "preprocessor_vs_select_action_per_chunk": chunk_pre / chunk_select,
     }
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / "policy.json").write_text(json.dumps(result, indent=2))

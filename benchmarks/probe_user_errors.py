@@ -587,7 +587,7 @@ def build_fixtures(f: Path) -> dict[str, Path]:
             fx["galr"],
         ]
     )
-    must(["dataset", "latent", "--input", fx["merged_galr"], "--output", fx["latent"]])
+    must(["policy", "latent-dataset", "--input", fx["merged_galr"], "--output", fx["latent"]])
     must(
         [
             "sim",
@@ -1022,21 +1022,21 @@ def define_probes(fx: dict[str, Path], work: Path) -> list[Probe]:  # noqa: C901
         check=frames_of(w("merge_ok") / "m", 40, ["umi", "inspire"]),
     )
 
-    # --- dataset latent -------------------------------------------------------------------------------
-    latent = ["dataset", "latent", "--input"]
+    # --- policy latent-dataset ------------------------------------------------------------------------
+    latent = ["policy", "latent-dataset", "--input"]
     add_cli(
         "latent_on_a_per_hand_dataset",
         "latent",
-        [*latent, umi, "--output", w("l1") / "z"],
-        words=["not a merged dataset", "umi"],
-        absent=(w("l1") / "z",),
+        [*latent, umi, "--output", w("l1") / "z", "--galr", galr],
+        "accept",
+        check=frames_of(w("l1") / "z", 20),
     )
     add_cli(
         "latent_on_a_merged_dataset_without_latents",
         "latent",
-        [*latent, fx["merged"], "--output", w("l2") / "z"],
-        words=["--galr"],
-        absent=(w("l2") / "z",),
+        [*latent, fx["merged"], "--output", w("l2") / "z", "--galr", galr],
+        "accept",
+        check=frames_of(w("l2") / "z", 40),
     )
     d = w("latent_output_is_its_input")
     add_cli(

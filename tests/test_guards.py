@@ -386,7 +386,15 @@ def test_overwrite_replaces_only_a_dataset(datasets, tmp_path, capsys):
 def test_latent_never_writes_over_or_into_its_input(datasets, tmp_path, capsys, output):
     source = _copy(datasets / "umi", tmp_path / "mg")
     before = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*"))
-    argv = ["dataset", "latent", "--input", str(source), "--output", str(source / output), "--overwrite"]
+    argv = [
+        "policy",
+        "latent-dataset",
+        "--input",
+        str(source),
+        "--output",
+        str(source / output),
+        "--overwrite",
+    ]
     assert "would write over the input" in _error(capsys, argv)
     assert sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*")) == before
 
@@ -421,9 +429,8 @@ def test_merging_a_latent_dataset_says_what_it_is(datasets, tiny_galr, tmp_path,
     inputs = [str(datasets / "umi"), str(datasets / "inspire")]
     assert cli.main(["dataset", "merge", "--inputs", *inputs, "--output", str(tmp_path / "m"), "--galr",
                      str(tiny_galr)]) == 0  # fmt: skip
-    assert (
-        cli.main(["dataset", "latent", "--input", str(tmp_path / "m"), "--output", str(tmp_path / "z")]) == 0
-    )
+    argv = ["policy", "latent-dataset", "--input", str(tmp_path / "m"), "--output", str(tmp_path / "z")]
+    assert cli.main(argv) == 0
     err = _error(
         capsys, ["dataset", "merge", "--inputs", str(tmp_path / "z"), "--output", str(tmp_path / "m2")]
     )

@@ -28,7 +28,6 @@ from subprocesses import run_command
 
 from lerobot_opfa import cli
 from lerobot_opfa.datasets import merge as merge_module
-from lerobot_opfa.datasets.latent import latent_dataset
 from lerobot_opfa.datasets.layout import JointNameError, read_layout
 from lerobot_opfa.datasets.merge import merge_datasets
 from lerobot_opfa.datasets.statistics import STATS_FILE
@@ -43,6 +42,7 @@ from lerobot_opfa.policy.joint_steps import OpfaEncodeJointsStep
 from lerobot_opfa.policy.modeling_opfa import OpfaPolicy
 from lerobot_opfa.policy.normalization import OpfaNormalizeStep, OpfaUnnormalizeStep
 from lerobot_opfa.policy.processor_opfa import make_opfa_pre_post_processors
+from lerobot_opfa.policy.stock import latent_dataset
 
 HANDS = ["umi", "inspire", "leap"]  # 1, 6 and 16 DoF
 GALR = dict(latent_dim=8, encoder="pointnet", n_points=64, n_level1=32, n_superpoints=24, widths=(16, 32, 32),
@@ -98,6 +98,7 @@ def native_observation(hand: str, cloud: torch.Tensor) -> dict:
         "observation.state": state,
         OBS_POINTCLOUD: cloud,
         OBS_ENV_STATE: env_state,
+        OBS_HAND: hand,
         "task": "lift the object",
     }
 
@@ -181,8 +182,9 @@ def test_fast_sampling_matches_the_plain_unet_and_sampler(n_heads):
 
 @pytest.mark.parametrize("float16", [False, True])
 def test_fast_sampling_follows_optimiser_steps_and_loads(float16):
-    """The frozen traces are dropped after an optimiser step and after a load through a parent module;
-    with float16 weights the actions stay within 2e-3."""
+    """The frozen traces follow the weights after an optimiser step and after a load through a parent
+    module (no hook: the traces are keyed by the weights' versions); with float16 weights the actions stay
+    within 2e-3."""
     from lerobot_opfa.policy.diffusion import Ddim
     from lerobot_opfa.policy.fast_sampling import FastSampler
 
@@ -209,13 +211,11 @@ def test_fast_sampling_follows_optimiser_steps_and_loads(float16):
     optimiser = torch.optim.SGD(unet.parameters(), lr=1.0)
     unet(x, torch.tensor([0, 42, 99]), cond, head).square().mean().backward()
     optimiser.step()
-    assert not sampler.traces
     plain_after, fast_after = both()
     assert not torch.allclose(plain_after, plain, atol=1e-3)
     assert torch.allclose(fast_after, plain_after, atol=atol)
     parent = torch.nn.ModuleDict({"unet": unet})
     parent.load_state_dict({k: v * 0.5 for k, v in parent.state_dict().items()})
-    assert not sampler.traces
     plain_loaded, fast_loaded = both()
     assert torch.allclose(fast_loaded, plain_loaded, atol=atol)
 
@@ -324,7 +324,7 @@ def test_cached_and_online_latents_agree(data):
     assert encoders[0].use_cached_latents and not encoders[1].use_cached_latents
     from_cache = _before_normalization(pre_merged, batch_of(merged, [50, 60]))
     online = _before_normalization(pre_native, batch_of(native, [2, 12]))
-    assert from_cache[OBS_EMBODIMENT].tolist() == [2, 2] and online[OBS_EMBODIMENT].tolist() == [0, 0]
+    assert from_cache[OBS_EMBODIMENT].tolist() == [[2], [2]] and online[OBS_EMBODIMENT].tolist() == [[0], [0]]
     for key in ("observation.state", "action"):
         assert torch.allclose(from_cache[key], online[key], atol=1e-5)
 
@@ -428,14 +428,14 @@ def test_constant_action_entries_come_out_constant_and_the_rest_round_trips(
     wild = torch.randn_like(normalised) * 5  # a denoiser far off, even outside DDIM's clip range
     out = unnormalize(create_transition(action=wild))[TransitionKey.ACTION]
     assert (out[..., [PITCH, ROLL]] == 0).all(), "the demos' constant wrist tilt is emitted as that constant"
-    ids = transition[TransitionKey.OBSERVATION][OBS_EMBODIMENT]
+    ids = transition[TransitionKey.OBSERVATION][OBS_EMBODIMENT][:, 0]
     low, high = unnormalize.tables["action.low"][ids], unnormalize.tables["action.high"][ids]
     assert ((out >= low[:, None]) & (out <= high[:, None])).all(), "actions stay in their training range"
 
 
-def test_a_state_of_the_wrong_width_is_an_error_of_the_preprocessor_though_its_encode_is_deferred(data):
+def test_a_state_of_the_wrong_width_is_an_error_of_the_preprocessor(data):
     _, pre, _, _ = make_policy(data, "merged")
-    observation = native_observation("leap", torch.zeros(32 * 3)) | {OBS_HAND: "leap"}
+    observation = native_observation("leap", torch.zeros(32 * 3))
     observation["observation.state"] = observation["observation.state"][:-1]
     with pytest.raises(
         ValueError,
@@ -493,7 +493,7 @@ def test_a_robot_state_beyond_its_joint_limits_a_missing_or_unflattened_cloud_ar
 def test_convert_io_refuses_an_opfa_checkpoint_and_a_missing_folder(data, tmp_path, capsys):
     policy, _, _, _ = make_policy(data, "inspire", action_space="raw")
     policy.save_pretrained(tmp_path / "opfa")
-    convert = ["policy", "convert-io", "--galr", str(data / "galr"), "--output", str(tmp_path / "out")]
+    convert = ["policy", "convert-io", "--output", str(tmp_path / "out")]
     for folder, message in [
         ("opfa", "is an opfa policy"),
         ("nowhere", "not a checkpoint folder (no config.json"),
@@ -584,9 +584,9 @@ def test_checkpoints_saved_by_an_earlier_version_give_the_same_actions(space):
         assert torch.allclose(actions, expected[f"{space}/{hand}"], atol=1e-5), hand
 
 
-def test_interleaved_pipelines_of_one_checkpoint_never_mix_hands(data, tmp_path):
-    """Two hands through two pipelines loaded from one checkpoint (they share its link): postprocessors
-    that learn their hand from the preprocessor refuse; given their hand, each decodes its own actions."""
+def test_interleaved_pipelines_of_one_checkpoint_act_each_for_its_own_hand(data, tmp_path):
+    """Two hands through two pipelines loaded from one checkpoint, call by call: each postprocessor decodes
+    for the hand its own preprocessor saw (LeRobot pairs them on loading), with no override."""
     policy, pre, post, ds = make_policy(data, "merged")
     policy.eval()
     for obj in (policy, pre, post):
@@ -595,65 +595,28 @@ def test_interleaved_pipelines_of_one_checkpoint_never_mix_hands(data, tmp_path)
     hands = ("inspire", "leap")  # 6 and 16 joints
     expected = {hand: rollout(policy, pre, post, hand, cloud, steps=1) for hand in hands}
     del pre, post
-
-    def interleaved(hand_a=None, hand_b=None):
-        pipelines = []
-        for hand in (hand_a, hand_b):
-            given = {} if hand is None else {"hand": hand}
-            overrides = {"opfa_unnormalize": given, "opfa_decode_joints": given}
-            pipelines.append(
-                make_pre_post_processors(
-                    policy.config, pretrained_path=str(tmp_path), postprocessor_overrides=overrides
-                )
-            )
-        actions = []
-        for (pre_, _), hand in zip(pipelines, hands, strict=True):
-            policy.reset()
-            torch.manual_seed(0)
-            with torch.no_grad():
-                actions.append(policy.select_action(pre_(native_observation(hand, cloud))))
-        return [post_(action) for (_, post_), action in zip(pipelines, actions, strict=True)]
-
-    with pytest.raises(ValueError, match="2 preprocessors of one policy"):
-        interleaved()
-    decoded = interleaved(*hands)
+    pipelines = [make_pre_post_processors(policy.config, pretrained_path=str(tmp_path)) for _ in hands]
+    actions = []
+    for (pre_, _), hand in zip(pipelines, hands, strict=True):
+        policy.reset()
+        torch.manual_seed(0)
+        with torch.no_grad():
+            actions.append(policy.select_action(pre_(native_observation(hand, cloud))))
+    decoded = [post_(action) for (_, post_), action in zip(pipelines, actions, strict=True)]
+    assert [len(d[0]) for d in decoded] == [6 + 6, 6 + 16]
     assert all(torch.equal(decoded[i], expected[hand]) for i, hand in enumerate(hands))
 
 
-def test_a_rollout_encodes_only_the_states_the_policy_reads_and_acts_as_when_all_are_encoded(data):
-    """The preprocessor defers the GaLR encode of the hand state: over 3 chunks only the `n_obs_steps`
-    states before each chunk are encoded, and the actions equal those of encoding every state at once."""
-    policy, pre, post, _ = make_policy(data, "merged")
-    galr = next(step for step in pre.steps if isinstance(step, OpfaEncodeJointsStep)).galr
-    encoded = []
-    galr.encoder.register_forward_hook(lambda module, args, out: encoded.append(len(out)))
-    cloud, steps = torch.zeros(32 * 3), 3 * policy.config.n_action_steps
-    observations = []
-    for t in range(steps):
-        observation = native_observation("leap", cloud)
-        observation["observation.state"][6:] += 0.02 * t  # a new hand state every step
-        observations.append(observation)
+def test_a_preprocessed_observation_can_be_copied_pickled_and_saved(data, tmp_path):
+    import copy
+    import pickle
 
-    def run(encode_every_state: bool) -> tuple[torch.Tensor, int]:
-        policy.reset()
-        encoded.clear()
-        torch.manual_seed(0)
-        actions = []
-        with torch.no_grad():
-            for observation in observations:
-                batch = pre(dict(observation))
-                if encode_every_state:
-                    batch["observation.state"] = batch["observation.state"].clone()  # computes it now
-                actions.append(post(policy.select_action(batch)))
-        return torch.cat(actions), len(encoded)
-
-    deferred, deferred_encodes = run(encode_every_state=False)
-    every, every_encodes = run(encode_every_state=True)
-    chunk_starts = range(0, steps, policy.config.n_action_steps)
-    read = {t for s in chunk_starts for t in range(max(0, s - policy.config.n_obs_steps + 1), s + 1)}
-    assert every_encodes == steps
-    assert deferred_encodes == len(read) < steps
-    assert torch.equal(deferred, every)
+    _, pre, _, _ = make_policy(data, "merged")
+    batch = pre(native_observation("leap", torch.zeros(32 * 3)))
+    for copied in (copy.deepcopy(batch), pickle.loads(pickle.dumps(batch))):
+        assert torch.equal(copied["observation.state"], batch["observation.state"])
+    torch.save(batch, tmp_path / "batch.pt")
+    assert torch.equal(torch.load(tmp_path / "batch.pt")["observation.state"], batch["observation.state"])
 
 
 def test_hub_push_and_pull_through_lerobot(data, tmp_path, monkeypatch):
@@ -692,14 +655,22 @@ def test_hub_push_and_pull_through_lerobot(data, tmp_path, monkeypatch):
 
 
 def test_stock_diffusion_in_galr_space_then_joint_io(data, tmp_path):
-    """Item 7: LeRobot's own diffusion policy trains on a latent dataset, then acts in joint space."""
+    """LeRobot's own diffusion policy trains on a latent dataset, whose frames are what opfa's preprocessor
+    makes of them (the same joint maps, GaLR and per-embodiment normalisation), then acts in joint space."""
     from lerobot.policies.diffusion.configuration_diffusion import DiffusionConfig
     from lerobot.policies.diffusion.modeling_diffusion import DiffusionPolicy
     from lerobot.policies.factory import make_policy as make_stock_policy
 
-    latent_dataset(data / "merged", tmp_path / "latent")
+    latent_dataset(data / "merged", tmp_path / "latent", str(data / "galr"))
     meta = LeRobotDatasetMetadata("local/latent", root=tmp_path / "latent")
     assert meta.features["action"]["shape"] == (6 + 8,)
+    opfa, opfa_pre, _, merged = make_policy(data, "merged")
+    rows, now = [0, 30, 60], opfa.config.n_obs_steps - 1  # the windows' current frame
+    expected = opfa_pre(batch_of(merged, rows))
+    latent = LeRobotDataset("local/latent", root=tmp_path / "latent")
+    for key in ("observation.state", "action"):
+        frames = torch.stack([latent[r][key] for r in rows])
+        assert torch.allclose(frames, expected[key][:, now], atol=1e-5), key
     config = DiffusionConfig(
         device="cpu", down_dims=(16, 32), horizon=8, n_action_steps=4, n_groups=4,
         diffusion_step_embed_dim=16, noise_scheduler_type="DDIM", num_inference_steps=10,
@@ -715,7 +686,14 @@ def test_stock_diffusion_in_galr_space_then_joint_io(data, tmp_path):
     policy.eval()
     for obj in (policy, pre, post):
         obj.save_pretrained(tmp_path / "stock")
-    convert = ["policy", "convert-io", "--policy", str(tmp_path / "stock"), "--galr", str(data / "galr")]
+    convert = [
+        "policy",
+        "convert-io",
+        "--policy",
+        str(tmp_path / "stock"),
+        "--dataset",
+        str(tmp_path / "latent"),
+    ]
     assert cli.main([*convert, "--output", str(tmp_path / "joint_io")]) == 0
     loaded = DiffusionPolicy.from_pretrained(tmp_path / "joint_io")
     pre2, post2 = make_pre_post_processors(loaded.config, pretrained_path=str(tmp_path / "joint_io"))
@@ -807,7 +785,7 @@ def test_state_guard_reads_the_right_frame_of_a_history(caplog):
                "high": torch.ones(1, 2)}.items()}  # fmt: skip
     step = OpfaNormalizeStep(keys=["observation.state"], tables=tables, names=["a", "b"], embodiments=["h"])
     state = torch.tensor([[[0.5, 0.0], [0.0, 42.0]]])
-    observation = {"observation.state": state, OBS_EMBODIMENT: torch.zeros(1, dtype=torch.long)}
+    observation = {"observation.state": state, OBS_EMBODIMENT: torch.zeros(1, 1, dtype=torch.long)}
     with caplog.at_level(logging.WARNING, logger="lerobot_opfa.policy.normalization"):
         step(create_transition(observation=observation))
     (message,) = [r.getMessage() for r in caplog.records]

@@ -138,12 +138,10 @@ def test_a_merge_whose_record_is_gone_is_refused(merged, tmp_path):
 
 
 def test_a_dataset_without_a_record_keeps_no_stale_copy(merged, tmp_path):
-    """`dataset latent` copies its input's numeric features; its own record replaces the inherited copy."""
-    assert (
-        cli.main(["dataset", "latent", "--input", str(merged / "merged"), "--output", str(tmp_path / "z")])
-        == 0
-    )
-    assert opfa_record(tmp_path / "z")["latent_only"] is True
+    """`policy latent-dataset` copies its input's features; its own record replaces the inherited copy."""
+    argv = ["policy", "latent-dataset", "--input", str(merged / "merged"), "--output", str(tmp_path / "z")]
+    assert cli.main(argv) == 0
+    assert opfa_record(tmp_path / "z")["policy_space"] is True
     info = json.loads((merged / "umi" / "meta" / "info.json").read_text())
     assert "info" not in info["features"][OBS_STATE], "a dataset without a record has no copy"
     assert ACTION in info["features"] and np.ndim(info["features"][OBS_STATE]["shape"]) == 1

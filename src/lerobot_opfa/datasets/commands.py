@@ -1,4 +1,4 @@
-"""`lerobot-opfa dataset ...`: merge, latent, clouds, synthetic."""
+"""`lerobot-opfa dataset ...`: merge, clouds, synthetic."""
 
 from __future__ import annotations
 
@@ -31,12 +31,6 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     merge.add_argument("--overwrite", action="store_true")
     merge.set_defaults(func=_merge)
 
-    latent = dataset.add_parser("latent", help="merged dataset -> state/action = wrist + z (stock policies)")
-    latent.add_argument("--input", type=Path, required=True)
-    latent.add_argument("--output", type=Path, required=True)
-    latent.add_argument("--overwrite", action="store_true")
-    latent.set_defaults(func=_latent)
-
     clouds = dataset.add_parser(
         "clouds", help="depth dataset -> its clouds, made once through the depth step (fast training)"
     )
@@ -62,12 +56,6 @@ def _merge(args: argparse.Namespace) -> None:
 
     out = merge_datasets(args.inputs, args.output, args.galr, args.repo_id, args.overwrite, args.joint_maps)
     print(f"wrote {_summary(out)}" + (f"; latents cached with GaLR {args.galr}" if args.galr else ""))
-
-
-def _latent(args: argparse.Namespace) -> None:
-    from lerobot_opfa.datasets.latent import latent_dataset
-
-    print(f"wrote {_summary(latent_dataset(args.input, args.output, args.overwrite))}")
 
 
 def _clouds(args: argparse.Namespace) -> None:

@@ -26,7 +26,7 @@ from lerobot_opfa.hands.universal import UNIVERSAL_JOINT_NAMES
 
 LATENT_PREFIX = "z"
 LATENT_ROBOT_TYPE = "opfa_latent"
-"""The `robot_type` of a `dataset latent` output: state and action are body + z, not joints."""
+"""The `robot_type` of a `policy latent-dataset` output: state and action are body + z, not joints."""
 
 
 class JointNameError(ValueError):

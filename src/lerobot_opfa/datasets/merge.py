@@ -69,7 +69,7 @@ def _open(root: Path, hands: list[str] | None, joint_maps: list[JointMap], bound
     meta = LeRobotDatasetMetadata(f"local/{root.name}", root=root)
     if meta.robot_type == LATENT_ROBOT_TYPE:
         raise ValueError(
-            f"{root} is a latent dataset (`dataset latent`); merge the per-hand datasets it came from"
+            f"{root} is a latent dataset (`policy latent-dataset`); merge the datasets it came from"
         )
     names = set(feature_names(meta.features, OBS_STATE))
     fitting = [bound] if bound is not None else [m for m in joint_maps if set(m.joints) <= names]

@@ -69,6 +69,10 @@ class OpfaEnvConfig(EnvConfig):
     camera_height: int = 96
     fps: int = 20
     episode_length: int | None = None  # steps; None: the task's default
+    policy_action_width: int | None = None
+    """The action width of a policy whose postprocessor gives this env its joints, when it differs (a stock
+    policy in GaLR space: body + z). LeRobot's lerobot-eval builds even a pretrained policy's action
+    output at the env's declared action width (policies/factory.make_policy), so the env declares this one."""
     render_width: int = 320
     render_height: int = 240
     features: dict[str, PolicyFeature] = field(default_factory=dict)
@@ -89,7 +93,10 @@ class OpfaEnvConfig(EnvConfig):
             parse_cameras(self.rgb_cameras)
         with flag("env.hand"):
             dim = len(WRIST_JOINTS) + len(load_spec(self.hand).joints)
-        self.features = {ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(dim,))}
+        if self.policy_action_width is not None and self.policy_action_width < 1:
+            raise ValueError(f"--env.policy_action_width: a positive width, not {self.policy_action_width}")
+        action = self.policy_action_width or dim
+        self.features = {ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(action,))}
         self.features["agent_pos"] = PolicyFeature(type=FeatureType.STATE, shape=(dim,))
         self.features_map = {ACTION: ACTION, "agent_pos": OBS_STATE}
         if "pointcloud" in self.obs_type:

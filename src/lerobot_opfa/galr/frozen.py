@@ -3,6 +3,7 @@ so cached latents are only trusted when they came from the same model."""
 
 from __future__ import annotations
 
+import copy
 import hashlib
 from functools import cache
 
@@ -13,10 +14,15 @@ from lerobot_opfa.galr.model import Galr
 from lerobot_opfa.hands.registry import builtin_hands, load_spec
 
 
-@cache
 def load_galr(ref: str) -> Galr:
-    """A GaLR checkpoint (packaged name, local folder or Hub repo id), frozen, in eval mode; loaded once per
+    """A GaLR checkpoint (packaged name, local folder or Hub repo id), frozen, in eval mode: the caller's
+    own copy (a pipeline moves its GaLR to its device; another's stays where it is), read once per
     process."""
+    return copy.deepcopy(_read_galr(ref))
+
+
+@cache
+def _read_galr(ref: str) -> Galr:
     galr = checkpoints.load(ref)
     galr.requires_grad_(False)
     return galr

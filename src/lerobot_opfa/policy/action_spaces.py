@@ -12,6 +12,8 @@ the processors and the policy read `ACTION_SPACES[config.action_space]`; a new b
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from types import MappingProxyType
 from typing import TYPE_CHECKING, ClassVar, Protocol
 
 import torch
@@ -170,4 +172,6 @@ class PerEmbodimentSpace(ActionSpace):
         return hands.model(index).from_universal(rest)
 
 
-ACTION_SPACES: dict[str, ActionSpace] = {s.name: s for s in (GalrSpace(), RawSpace(), PerEmbodimentSpace())}
+ACTION_SPACES: Mapping[str, ActionSpace] = MappingProxyType(
+    {s.name: s for s in (GalrSpace(), RawSpace(), PerEmbodimentSpace())}
+)

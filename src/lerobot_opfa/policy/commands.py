@@ -10,20 +10,43 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     policy = subparsers.add_parser("policy", help="trained policy checkpoints").add_subparsers(
         dest="policy_command", required=True
     )
+    dataset = policy.add_parser(
+        "latent-dataset",
+        help="a dataset's copy with state/action in the policy space (body + z), for a stock policy",
+    )
+    dataset.add_argument("--input", type=Path, required=True, help="a dataset opfa trains on")
+    dataset.add_argument("--output", type=Path, required=True)
+    dataset.add_argument("--galr", help="GaLR checkpoint (default: the merge's, else the packaged default)")
+    dataset.add_argument("--drop", default="", help="comma-separated features to leave out")
+    dataset.add_argument("--overwrite", action="store_true")
+    dataset.set_defaults(func=_dataset)
     convert = policy.add_parser(
         "convert-io", help="give a stock policy trained on a latent dataset a joint-space interface"
     )
     convert.add_argument("--policy", type=Path, required=True, help="checkpoint folder (pretrained_model)")
     convert.add_argument(
-        "--galr", required=True, help="the GaLR the latent dataset was made with (name, folder, repo)"
+        "--dataset",
+        type=Path,
+        help="the policy-space dataset it was trained on (default: its train_config's)",
     )
     convert.add_argument("--output", type=Path, required=True)
-    convert.add_argument("--hand", help="hand of observations without an embodiment id (default: inferred)")
+    convert.add_argument("--hand", help="the robot of frames that do not say, for a policy of several")
     convert.set_defaults(func=_convert)
 
 
-def _convert(args: argparse.Namespace) -> None:
-    from lerobot_opfa.policy.stock_io import convert_policy_io
+def _dataset(args: argparse.Namespace) -> None:
+    from lerobot_opfa.policy.stock import latent_dataset
 
-    convert_policy_io(args.policy, args.galr, args.output, args.hand)
-    print(f"wrote {args.output}: the policy of {args.policy} with a joint-space interface")
+    drop = tuple(name for name in args.drop.split(",") if name)
+    out = latent_dataset(args.input, args.output, args.galr, drop, args.overwrite)
+    print(f"wrote {out}: the frames of {args.input} with state and action in the policy space")
+
+
+def _convert(args: argparse.Namespace) -> None:
+    from lerobot_opfa.policy.stock import convert_checkpoint
+
+    out, width = convert_checkpoint(args.policy, args.output, args.dataset, args.hand)
+    print(
+        f"wrote {out}: the policy of {args.policy} with a joint-space interface; in lerobot-eval with "
+        f"--env.type=opfa give it --env.policy_action_width={width} (its actions are body + z)"
+    )

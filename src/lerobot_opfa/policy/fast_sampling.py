@@ -7,13 +7,11 @@ switches it off; tests pin it against the plain U-Net."""
 from __future__ import annotations
 
 import warnings
-import weakref
 from contextlib import contextmanager, nullcontext
 
 import torch
 import torch.nn.functional as F  # noqa: N812
 from torch import Tensor, nn
-from torch.optim.optimizer import register_optimizer_step_post_hook
 
 from lerobot_opfa.policy.diffusion import ConditionalUnet1d, ConvBlock, FiLMResidualBlock
 
@@ -118,8 +116,9 @@ class FastSampler:
     """`denoiser(timesteps, cond, head)` for `Ddim.sample`, through frozen traces of `denoise` made at the
     first call per input shape, device and dtype. A chunk is ten U-Net passes of hundreds of small ops at
     batch 1; run as one graph they skip Python's per-op dispatch, a third of a pass's time on a CPU, and
-    freezing (weights as constants) takes off another sixth. The traces are dropped when the weights
-    change: after any optimiser step in the process and after `load_state_dict` (explicit hooks). torch
+    freezing (weights as constants) takes off another sixth. The traces are made again when the weights
+    change: an optimiser step, `load_state_dict` or a move changes a parameter's storage or its version
+    counter (torch counts every in-place write), and the traces are keyed by both. torch
     2.11 marks `torch.jit.trace` deprecated in favour of `torch.compile`, which here costs about 50 s per
     process and a C++ toolchain and ran no faster (3.9 vs 3.5 ms per pass), so the trace stays and its
     warnings are silenced."""
@@ -128,12 +127,8 @@ class FastSampler:
         self.unet = unet
         self.float16 = float16_weights and "fbgemm" in torch.backends.quantized.supported_engines
         self.traces: dict[tuple, torch.jit.ScriptModule] = {}
-        forget = _forgetter(self)
-        unet.register_load_state_dict_post_hook(forget)
-        self._optimizer_hook = register_optimizer_step_post_hook(forget)
-
-    def __del__(self):
-        self._optimizer_hook.remove()
+        self.weights: tuple = ()
+        """(storage, version) of each U-Net parameter when the traces were made."""
 
     def denoiser(self, timesteps: list[int], cond: Tensor, head: Tensor | None = None):
         """`denoise(x, i)` at the i-th of `timesteps`; the FiLM inputs of all steps are computed up front."""
@@ -145,6 +140,9 @@ class FastSampler:
 
     def _traced(self, x: Tensor, step_films: tuple[Tensor, ...], head: Tensor | None) -> Tensor:
         inputs = (x, step_films) if head is None else (x, step_films, head)
+        weights = tuple((p.data_ptr(), p._version) for p in self.unet.parameters())
+        if weights != self.weights:
+            self.traces, self.weights = {}, weights
         key = (x.shape, x.device, x.dtype, head is None)
         if key not in self.traces:
             float16 = self.float16 and x.device.type == "cpu" and x.dtype == torch.float32
@@ -155,17 +153,6 @@ class FastSampler:
                 trace = torch.jit.trace(_Denoise(self.unet), inputs, check_trace=False)
                 self.traces[key] = torch.jit.freeze(trace.eval())
         return self.traces[key](*inputs)
-
-
-def _forgetter(sampler: FastSampler):
-    """A hook that drops the sampler's traces (holding it weakly: the optimiser hook is process-wide)."""
-    ref = weakref.ref(sampler)
-
-    def forget(*_) -> None:
-        if (alive := ref()) is not None:
-            alive.traces.clear()
-
-    return forget
 
 
 class _Denoise(nn.Module):

@@ -10,6 +10,8 @@ keypoints than the ResNet's thirty-second (docs/results.md, "Datasets as a rig r
 
 from __future__ import annotations
 
+from types import MappingProxyType
+
 import torch
 from torch import Tensor, nn
 
@@ -72,7 +74,7 @@ def resnet18_backbone(weights: str | None) -> nn.Sequential:
     return nn.Sequential(*list(net.children())[:-2])
 
 
-BACKBONES = {"small": lambda weights: small_backbone(), "resnet18": resnet18_backbone}
+BACKBONES = MappingProxyType({"small": lambda weights: small_backbone(), "resnet18": resnet18_backbone})
 """Backbone name -> builder from torchvision weights (only the ResNet takes any)."""
 IMAGE_BACKBONES = tuple(BACKBONES)
 

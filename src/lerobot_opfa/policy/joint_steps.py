@@ -6,28 +6,35 @@ into the policy space: body + z for `galr`, body + that hand's joints for `raw`,
 joints for `per_embodiment`. It also leaves the batch's embodiment ids in `observation.embodiment`.
 
 Postprocessor: `opfa_decode_joints` maps policy-space actions back to the robot's action entries (for
-`galr` through the GaLR decoder), inverting the same joint map. A postprocessor only sees the action, so it
-reads which hand produced it from its preprocessor partner: both carry the same `link` id (saved in both
-JSON configs), the same way LeRobot's relative/absolute action steps pair up. Two pipelines loaded from one
-checkpoint share the link: when both preprocessors have seen observations, a postprocessor cannot tell them
-apart and refuses; give each postprocessor its hand instead (`hand`, e.g. through `postprocessor_overrides`).
+`galr` through the GaLR decoder), inverting the same joint map.
+
+Which robot a frame comes from is said once, by the frame: `observation.embodiment` ids (a merged dataset),
+`observation.hand` (the simulator's frames, whose entries are its hand's body entries then joints in spec
+order: the identity map), or nothing (the one robot of a one-robot policy, or the pipeline's `hand`). Every
+robot's frames go through the same code, a `JointMap`. A postprocessor only sees the action, so it reads
+the robot from its own preprocessor's last batch: the encode step is LeRobot's relative-action step and the
+postprocessor's steps its absolute-action steps, the one pairing LeRobot restores when it loads a pipeline
+pair (`make_pre_post_processors` -> `_reconnect_relative_absolute_steps`); the relative conversion itself
+stays off. Each pair is its own: two pipelines of one checkpoint drive two robots in one process.
 """
 
 from __future__ import annotations
 
-import gc
-import weakref
 from dataclasses import dataclass, field
 from functools import cached_property, partial
 from typing import Any
 
 import torch
 from lerobot.configs.types import PipelineFeatureType, PolicyFeature
-from lerobot.processor import ObservationProcessorStep, ProcessorStep, ProcessorStepRegistry, TransitionKey
+from lerobot.processor import ObservationProcessorStep, ProcessorStepRegistry, TransitionKey
+from lerobot.processor.relative_action_processor import (
+    AbsoluteActionsProcessorStep,
+    RelativeActionsProcessorStep,
+)
 from lerobot.utils.constants import ACTION, OBS_STATE
 
 from lerobot_opfa.datasets.joint_map import JointMap
-from lerobot_opfa.features import OBS_EMBODIMENT, OBS_HAND, OBS_POINTCLOUD, batch_embodiments
+from lerobot_opfa.features import OBS_EMBODIMENT, OBS_HAND, OBS_POINTCLOUD, frame_embodiments
 from lerobot_opfa.galr.frozen import encode_joints, encode_universal, relocate_hand
 from lerobot_opfa.galr.model import Galr
 from lerobot_opfa.hands.bundle import pack, unpack
@@ -35,15 +42,10 @@ from lerobot_opfa.hands.model import LIVE_LIMIT_TOLERANCE, HandModel
 from lerobot_opfa.hands.registry import builtin_hands, load_hand, load_spec
 from lerobot_opfa.hands.universal import UNIVERSAL_JOINT_NAMES
 from lerobot_opfa.policy.action_spaces import ACTION_SPACES, ActionSpace
-from lerobot_opfa.policy.deferred import defer
 from lerobot_opfa.policy.latent_cache import LatentCache
 
 USER_HAND = "user_hand."
 """State-dict key prefix of a user hand's archive (`hands.bundle`), by the hand's name."""
-
-_ENCODERS: dict[str, weakref.WeakValueDictionary[int, OpfaEncodeJointsStep]] = {}
-"""link id -> the live preprocessor steps that have processed a batch (their postprocessor partners read
-the embodiment ids from the one there is)."""
 
 
 @ProcessorStepRegistry.register("opfa_pointcloud_batch")
@@ -110,10 +112,11 @@ class _HandSpace:
     wrist_dim: int = 6
     """Body entries of a policy state or action (a wrist pose, an arm's joints) before the hand's part."""
     galr_config: dict | None = None
-    link: str = ""
     joint_maps: list[dict] = field(default_factory=list)
     """Per embodiment, how its robot's vectors hold the body entries and the hand's joints (a bound
     `JointMap` as a dict); a step saved before: the body entries, then the joints in spec order."""
+    link: str = ""
+    """Read from checkpoints saved before LeRobot paired the steps (they matched by this id); unused."""
     galr: Galr | None = field(default=None, repr=False)
     """Runtime object: built from `galr_config` when loading, weights restored by `load_state_dict`."""
 
@@ -126,39 +129,44 @@ class _HandSpace:
             self.embodiment_joints = [load_spec(ref).universal_names for ref in self.hand_refs]
         if not self.joint_maps:
             self.joint_maps = [self._spec_order_map(ref).to_dict() for ref in self.hand_refs]
+        self._bind_maps()
+        self._hands: dict[int, HandModel] = {}
+        self._latent_caches: dict[int, LatentCache] = {}
+
+    def _bind_maps(self) -> None:
         self.maps = [
             JointMap.from_dict(m, f"the joint map of '{e}'")
             for m, e in zip(self.joint_maps, self.embodiments, strict=True)
         ]
-        self._hands: dict[int, HandModel] = {}
-        self._latent_caches: dict[int, LatentCache] = {}
+        self._simulator_maps: dict[int, JointMap] = {}
 
     def _spec_order_map(self, ref: str, joint_names: list[str] | None = None) -> JointMap:
         spec = load_spec(ref)
         names = [f"body_{i}" for i in range(self.wrist_dim)] + list(joint_names or spec.actuated_joints)
         return JointMap.named_after(spec, names, names)
 
-    def check_width(self, x: torch.Tensor, index: int, key: str, spec_order: bool) -> None:
-        """A robot's state or action has the entries of the embodiment's robot; one in spec order (this
-        package's env) the body entries, then the hand's joints."""
-        expected = self.wrist_dim + self.model(index).dof if spec_order else len(self.maps[index].names(key))
-        if x.shape[-1] != expected:
-            hand = self.embodiments[index]
+    def robot_map(self, index: int, simulator: bool) -> JointMap:
+        """Embodiment `index`'s joint map for frames of the trained robot, or of the simulator (the body
+        entries, then the joints in spec order: the identity)."""
+        if not simulator:
+            return self.maps[index]
+        if index not in self._simulator_maps:
+            self._simulator_maps[index] = self._spec_order_map(self.hand_refs[index])
+        return self._simulator_maps[index]
+
+    def check_width(self, x: torch.Tensor, index: int, key: str, simulator: bool) -> None:
+        """A robot's state or action has the entries of the embodiment's robot."""
+        names = self.robot_map(index, simulator).names(key)
+        if x.shape[-1] != len(names):
             raise ValueError(
-                f"{key} has {x.shape[-1]} entries; the '{hand}' robot this policy was trained on has "
-                f"{expected}: "
+                f"{key} has {x.shape[-1]} entries; the '{self.embodiments[index]}' robot this policy was "
+                f"trained on has {len(names)}: "
                 + (
-                    f"{self.wrist_dim} body entries, then {self.model(index).dof} joints"
-                    if spec_order
-                    else ", ".join(self.maps[index].names(key))
+                    f"{self.wrist_dim} body entries, then {len(names) - self.wrist_dim} joints"
+                    if simulator
+                    else ", ".join(names)
                 )
             )
-
-    def to_robot(self, index: int, body: torch.Tensor, q: torch.Tensor, spec_order: bool) -> torch.Tensor:
-        """Body entries and joints (spec order and units) -> the robot's action vector."""
-        if spec_order:
-            return torch.cat([body, q.to(body.dtype)], dim=-1)
-        return self.maps[index].join(body, q)
 
     @property
     def space(self) -> ActionSpace:
@@ -212,7 +220,6 @@ class _HandSpace:
             "embodiment_joints": [list(joints) for joints in self.embodiment_joints],
             "wrist_dim": self.wrist_dim,
             "galr_config": self.galr_config,
-            "link": self.link,
             "joint_maps": [dict(m) for m in self.joint_maps],
         }
 
@@ -247,26 +254,28 @@ class _HandSpace:
             index = self.embodiments.index(key.removeprefix(USER_HAND))
             spec = str(unpack(state.pop(key).numpy().tobytes()))
             self.hand_refs[index] = self.joint_maps[index]["hand"] = spec
-            self.maps[index] = JointMap.from_dict(self.joint_maps[index], self.maps[index].source)
             self._hands.pop(index, None)
             if self.galr is not None:
                 relocate_hand(self.galr, self.embodiments[index], spec)
+        self._bind_maps()
         return state
 
-    def single_id(self, ids: torch.Tensor) -> int:
-        unique = ids.unique()
-        if len(unique) != 1:
-            names = [self.embodiments[i] for i in unique.tolist()]
-            raise ValueError(f"a batch to decode must come from one hand, got {names}")
-        return int(unique[0])
+
+@dataclass(frozen=True)
+class FrameRobot:
+    """Which robot a batch of frames came from: its embodiment ids (B, slots) and whether its entries are
+    the simulator's (spec order) or the trained robot's. What a postprocessor reads from its preprocessor."""
+
+    ids: torch.Tensor
+    simulator: bool
 
 
 @ProcessorStepRegistry.register("opfa_encode_joints")
 @dataclass
-class OpfaEncodeJointsStep(_HandSpace, ProcessorStep):
+class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
     hand: str | None = None
-    """Hand of batches that carry no embodiment id (a robot's vectors). None: the trained hand whose robot
-    has the state's width, or an error when several do."""
+    """The robot this pipeline drives when its frames do not say (a policy of several robots deployed
+    with `lerobot-rollout`; not saved). Frames that say, and one-robot policies, need none."""
     native_joint_names: list[str] = field(default_factory=list)
     """A step saved before `joint_maps`: the column order of `hand`'s joints (read, not saved)."""
     use_cached_latents: bool = False
@@ -278,83 +287,72 @@ class OpfaEncodeJointsStep(_HandSpace, ProcessorStep):
                 self._spec_order_map(ref, self.native_joint_names if e == self.hand else None).to_dict()
                 for ref, e in zip(self.hand_refs, self.embodiments, strict=True)
             ]
+            self.hand = None  # it named the dataset's hand, not a robot to drive
         super().__post_init__()
-        self.last_ids: torch.Tensor | None = None
-        self.last_in_spec_order = False
+        self.last_frames: FrameRobot | None = None
 
     def __call__(self, transition):
         new = transition.copy()
         obs = dict(new[TransitionKey.OBSERVATION])
         state = obs[OBS_STATE].float()
         action = new.get(TransitionKey.ACTION)
-        hand = obs.pop(OBS_HAND, None)
-        spec_order = hand is not None  # this package's env: the wrist, then the joints in spec order
+        simulator = (hand := obs.pop(OBS_HAND, None)) is not None
         if OBS_EMBODIMENT in obs:
-            ids = batch_embodiments(obs[OBS_EMBODIMENT]).to(state.device)
+            ids = frame_embodiments(obs[OBS_EMBODIMENT]).to(state.device)
 
             def convert(x, key):
-                return self._from_universal(x, ids)
+                return self._from_universal(x, ids[:, 0])
         else:
-            index = self._hand_index(hand) if hand is not None else self._native_index(state.shape[-1])
-            self.check_width(state, index, OBS_STATE, spec_order)  # now, even when the encode is deferred
+            index = self.robot_index(hand)
+            self.check_width(state, index, OBS_STATE, simulator)
             if not isinstance(action, torch.Tensor):  # a live robot's (training frames are checked whole)
-                self.check_robot_state(state, index, spec_order)
-            ids = torch.full((len(state),), index, dtype=torch.long, device=state.device)
+                self.check_robot_state(state, index, simulator)
+            ids = torch.full((len(state), 1), index, dtype=torch.long, device=state.device)
 
             def convert(x, key):
-                return self._from_robot(x, index, key, spec_order)
+                return self._from_robot(x, index, key, simulator)
 
+        obs[OBS_STATE] = convert(state, OBS_STATE)
         if isinstance(action, torch.Tensor):
-            obs[OBS_STATE] = convert(state, OBS_STATE)
             new[TransitionKey.ACTION] = convert(action.float(), ACTION)
-        elif self.space.uses_galr:  # inference: encoded only if the policy reads this state (deferred.py)
-            obs[OBS_STATE] = defer(lambda: convert(state, OBS_STATE), state, self.policy_width)
-        else:
-            obs[OBS_STATE] = convert(state, OBS_STATE)
         obs[OBS_EMBODIMENT] = ids
-        self.last_ids, self.last_in_spec_order = ids, spec_order
-        _ENCODERS.setdefault(self.link, weakref.WeakValueDictionary())[id(self)] = self
+        self.last_frames = FrameRobot(ids, simulator)
         new[TransitionKey.OBSERVATION] = obs
         return new
 
-    def check_robot_state(self, state: torch.Tensor, index: int, spec_order: bool) -> None:
-        """A robot's joints near its hand's limits: a reading in other units would be encoded into a state
-        the policy never saw, without a word. (NaN is the state guard's, which names the entry.)"""
-        q = state[..., self.wrist_dim :] if spec_order else self.maps[index].split(state, OBS_STATE)[1]
-        if not q.isfinite().all():
-            return
-        source = f"{OBS_STATE} of the robot" + ("" if spec_order else f" (through {self.maps[index].source})")
-        self.model(index).check_within_limits(q.reshape(-1, q.shape[-1]), source, LIVE_LIMIT_TOLERANCE)
-
-    def forget_last_batch(self) -> None:
-        """Its postprocessor partner no longer reads this batch's hand (one the pipeline builder encoded)."""
-        self.last_ids, self.last_in_spec_order = None, False
-
-    # --- native layout: wrist + one hand's joints ----------------------------------------------------
-    def _hand_index(self, name: str) -> int:
+    def robot_index(self, hand: str | None) -> int:
+        """The embodiment of frames from the simulator of `hand`, or (None) of the robot the pipeline
+        drives."""
+        name = hand or self.hand
+        if name is None:
+            if len(self.embodiments) == 1:
+                return 0
+            raise ValueError(
+                f"this policy drives several robots ({', '.join(self.embodiments)}) and the frames do not "
+                "say which: add observation.embodiment or observation.hand to them, or give the pipeline its "
+                "robot: preprocessor_overrides={'opfa_encode_joints': {'hand': NAME}}"
+            )
         if name not in self.embodiments:
-            raise ValueError(f"this policy was trained on {self.embodiments}; it cannot drive hand '{name}'")
+            raise ValueError(
+                f"this policy drives {', '.join(self.embodiments)}; it cannot drive hand '{name}' (a policy "
+                "acts for the robots it was trained on)"
+            )
         return self.embodiments.index(name)
 
-    def _native_index(self, width: int) -> int:
-        if self.hand is not None:
-            return self.embodiments.index(self.hand)
-        fits = [i for i, m in enumerate(self.maps) if len(m.state_names) == width]
-        if len(fits) != 1:
-            raise ValueError(
-                f"cannot tell which hand a state of width {width} belongs to (trained on "
-                f"{self.embodiments}, {len(fits)} fit); pass the hand: preprocessor_overrides="
-                "{'opfa_encode_joints': {'hand': NAME}}, or add observation.embodiment to the batch"
-            )
-        return fits[0]
+    def check_robot_state(self, state: torch.Tensor, index: int, simulator: bool) -> None:
+        """A robot's joints near its hand's limits: a reading in other units would be encoded into a state
+        the policy never saw, without a word. (NaN is the state guard's, which names the entry.)"""
+        joint_map = self.robot_map(index, simulator)
+        q = joint_map.split(state, OBS_STATE)[1]
+        if not q.isfinite().all():
+            return
+        source = f"{OBS_STATE} of the robot" + ("" if simulator else f" (through {joint_map.source})")
+        self.model(index).check_within_limits(q.reshape(-1, q.shape[-1]), source, LIVE_LIMIT_TOLERANCE)
 
-    def _from_robot(self, x: torch.Tensor, index: int, key: str, spec_order: bool) -> torch.Tensor:
+    def _from_robot(self, x: torch.Tensor, index: int, key: str, simulator: bool) -> torch.Tensor:
         """A robot's state or action -> the policy space (body entries, then the space's hand part)."""
-        self.check_width(x, index, key, spec_order)
-        if spec_order:
-            body, q = x[..., : self.wrist_dim], x[..., self.wrist_dim :]
-        else:
-            body, q = self.maps[index].split(x, key)
+        self.check_width(x, index, key, simulator)
+        body, q = self.robot_map(index, simulator).split(x, key)
         return torch.cat([body, self.space.from_joints(self, index, q)], dim=-1)
 
     # --- merged layout: wrist + universal joints [+ cached z] ----------------------------------------
@@ -365,7 +363,7 @@ class OpfaEncodeJointsStep(_HandSpace, ProcessorStep):
         return torch.cat([x[..., :w], self.space.from_universal(self, x[..., w:u], ids)], dim=-1)
 
     def get_config(self) -> dict[str, Any]:
-        return {**self.config_dict(), "hand": self.hand, "use_cached_latents": self.use_cached_latents}
+        return {**self.config_dict(), "use_cached_latents": self.use_cached_latents}
 
     def state_dict(self) -> dict[str, torch.Tensor]:
         return self.galr_state("encoder.") | self.user_hands()
@@ -381,23 +379,44 @@ class OpfaEncodeJointsStep(_HandSpace, ProcessorStep):
         return features
 
 
+def paired_frames(step: AbsoluteActionsProcessorStep, batch: int, embodiments: list[str]) -> FrameRobot:
+    """The robot of the batch a postprocessor step's preprocessor saw last (a one-robot policy's when it
+    has seen none)."""
+    encoder = step.relative_step
+    seen = encoder.last_frames if isinstance(encoder, OpfaEncodeJointsStep) else None
+    if seen is not None and len(seen.ids) == batch:
+        return seen
+    if len(embodiments) == 1:
+        return FrameRobot(torch.zeros(batch, 1, dtype=torch.long), simulator=False)
+    raise ValueError(
+        "this postprocessor needs the robot its preprocessor saw: run the preprocessor on the observation "
+        "first, and load the two with lerobot's make_pre_post_processors(..., pretrained_path=...), which "
+        "pairs them"
+    )
+
+
 @ProcessorStepRegistry.register("opfa_decode_joints")
 @dataclass
-class OpfaDecodeJointsStep(_HandSpace, ProcessorStep):
+class OpfaDecodeJointsStep(_HandSpace, AbsoluteActionsProcessorStep):
     """Policy-space actions (B, [T], body + ...) -> the attached robot's action entries, in its order and
-    units (its joint map inverted); for this package's env, the wrist, then the joints in spec order."""
-
-    hand: str | None = None
-    """The attached hand, when given (not saved); else the one its preprocessor saw."""
+    units (its joint map inverted)."""
 
     def __call__(self, transition):
         new = transition.copy()
         action = new[TransitionKey.ACTION]
-        index = self.single_id(embodiment_ids(self.link, len(action), self.embodiments, self.hand))
+        frames = paired_frames(self, len(action), self.embodiments)
+        index = self.single_index(frames.ids)
         wrist, rest = action[..., : self.wrist_dim], action[..., self.wrist_dim :]
         q = self.space.to_joints(self, index, rest)
-        new[TransitionKey.ACTION] = self.to_robot(index, wrist, q, _in_spec_order(self.link))
+        new[TransitionKey.ACTION] = self.robot_map(index, frames.simulator).join(wrist, q)
         return new
+
+    def single_index(self, ids: torch.Tensor) -> int:
+        unique = ids.unique()
+        if len(unique) != 1:
+            names = [self.embodiments[i] for i in unique.tolist()]
+            raise ValueError(f"a batch to decode must come from one hand, got {names}")
+        return int(unique[0])
 
     def get_config(self) -> dict[str, Any]:
         return self.config_dict()
@@ -410,44 +429,3 @@ class OpfaDecodeJointsStep(_HandSpace, ProcessorStep):
 
     def transform_features(self, features):
         return features
-
-
-def embodiment_ids(link: str, batch: int, embodiments: list[str], hand: str | None = None) -> torch.Tensor:
-    """Embodiment ids of a postprocessor's batch: all `hand` when it is given, else those of the batch the
-    linked preprocessor saw last (a one-hand policy needs neither)."""
-    if hand is not None:
-        if hand not in embodiments:
-            raise ValueError(
-                f"hand '{hand}' is not one this policy was trained on ({', '.join(embodiments)})"
-            )
-        return torch.full((batch,), embodiments.index(hand), dtype=torch.long)
-    live = _live_encoders(link)
-    if len(live) > 1:
-        raise ValueError(
-            f"{len(live)} preprocessors of one policy (link '{link}') have seen observations in this "
-            "process, so its postprocessors cannot tell which hand an action is for; give each postprocessor "
-            "its hand: postprocessor_overrides={'opfa_unnormalize': {'hand': H}, 'opfa_decode_joints': "
-            "{'hand': H}}"
-        )
-    if live and live[0].last_ids is not None and len(live[0].last_ids) == batch:
-        return live[0].last_ids
-    if len(embodiments) == 1:
-        return torch.zeros(batch, dtype=torch.long)
-    raise ValueError(
-        "this postprocessor needs to know which hand produced the actions: run its preprocessor (same "
-        f"link '{link}') on the observation first, or give it the hand"
-    )
-
-
-def _in_spec_order(link: str) -> bool:
-    """Whether the observations the linked preprocessor saw last were in spec order (this package's env),
-    so the action goes back the same way; a robot's own entries otherwise."""
-    return {encoder.last_in_spec_order for encoder in _live_encoders(link)} == {True}
-
-
-def _live_encoders(link: str) -> list[OpfaEncodeJointsStep]:
-    live = list(_ENCODERS.get(link, {}).values())
-    if len(live) > 1:  # pipelines already dropped but not yet collected do not count
-        gc.collect()
-        live = list(_ENCODERS.get(link, {}).values())
-    return live

@@ -16,7 +16,7 @@ from lerobot.policies.utils import populate_queues
 from lerobot.utils.constants import ACTION, OBS_STATE
 from torch import Tensor, nn
 
-from lerobot_opfa.features import OBS_EMBODIMENT, OBS_POINTCLOUD, batch_embodiments
+from lerobot_opfa.features import OBS_EMBODIMENT, OBS_POINTCLOUD, single_slot
 from lerobot_opfa.galr.pointnet import PointNetEncoder
 from lerobot_opfa.hands.registry import load_spec
 from lerobot_opfa.policy.configuration_opfa import OpfaConfig
@@ -202,7 +202,7 @@ class OpfaPolicy(PreTrainedPolicy):
         cond = self.encode_observation(batch, images)
         noise = torch.randn_like(x0)
         t = torch.randint(0, self.config.num_train_timesteps, (len(x0),), device=x0.device)
-        head = batch_embodiments(batch[OBS_EMBODIMENT])
+        head = single_slot(batch[OBS_EMBODIMENT])
         pred = self.unet(self.ddim.add_noise(x0, noise, t), t, cond, head)
         error = F.mse_loss(pred, self.ddim.target(x0, noise), reduction="none")
         return (error * self.loss_weights[head].unsqueeze(1)).sum(-1).mean()
@@ -219,7 +219,7 @@ class OpfaPolicy(PreTrainedPolicy):
         else:
             self.check_observation(batch)
         cond = self.encode_observation(batch)
-        head = batch_embodiments(batch[OBS_EMBODIMENT])
+        head = single_slot(batch[OBS_EMBODIMENT])
         b = len(cond)
         shape = (b, self.config.horizon, self.unet.action_dim)
         if noise is None:
@@ -231,7 +231,8 @@ class OpfaPolicy(PreTrainedPolicy):
     def sample(self, cond: Tensor, head: Tensor | None, noise: Tensor) -> Tensor:
         """The DDIM reverse process from `noise` (B, horizon, A) for global conditions cond (B, C)."""
         steps = self.ddim.timesteps
-        if self.fast_sampler is not None and not (self.training or torch.is_grad_enabled()):
+        fast = cond.device.type == "cpu" and not (self.training or torch.is_grad_enabled())
+        if self.fast_sampler is not None and fast:
             return self.ddim.sample(self.fast_sampler.denoiser(steps, cond, head), noise)
 
         def denoise(x: Tensor, i: int) -> Tensor:

@@ -25,12 +25,12 @@ from typing import Any
 import torch
 from lerobot.configs import NormalizationMode
 from lerobot.processor import ProcessorStep, ProcessorStepRegistry, TransitionKey
+from lerobot.processor.relative_action_processor import AbsoluteActionsProcessorStep
 from lerobot.utils.constants import ACTION, OBS_STATE
 
 from lerobot_opfa.datasets.statistics import pool
-from lerobot_opfa.features import OBS_EMBODIMENT
-from lerobot_opfa.policy.deferred import DeferredTensor
-from lerobot_opfa.policy.joint_steps import embodiment_ids
+from lerobot_opfa.features import OBS_EMBODIMENT, single_slot
+from lerobot_opfa.policy.joint_steps import paired_frames
 
 logger = logging.getLogger(__name__)
 
@@ -98,13 +98,9 @@ class OpfaNormalizeStep(_EmbodimentAffine, ProcessorStep):
     def __call__(self, transition):
         new = transition.copy()
         obs = dict(new[TransitionKey.OBSERVATION])
-        ids = obs[OBS_EMBODIMENT]
+        ids = single_slot(obs[OBS_EMBODIMENT])
         if OBS_STATE in self.keys:
-            state = obs[OBS_STATE]
-            if isinstance(state, DeferredTensor):  # checked and normalised when the policy reads it
-                obs[OBS_STATE] = state.then(lambda value: self._checked_state(value, ids))
-            else:
-                obs[OBS_STATE] = self._checked_state(state, ids)
+            obs[OBS_STATE] = self._checked_state(obs[OBS_STATE], ids)
         action = new.get(TransitionKey.ACTION)
         if ACTION in self.keys and isinstance(action, torch.Tensor):
             new[TransitionKey.ACTION] = self._normalize(ACTION, action, ids)
@@ -159,24 +155,23 @@ class OpfaNormalizeStep(_EmbodimentAffine, ProcessorStep):
 
 @ProcessorStepRegistry.register("opfa_unnormalize")
 @dataclass
-class OpfaUnnormalizeStep(_EmbodimentAffine, ProcessorStep):
-    """Maps policy actions back, using the embodiments its linked preprocessor saw, into the actions'
-    training range (a constant action entry comes out as that constant)."""
+class OpfaUnnormalizeStep(_EmbodimentAffine, AbsoluteActionsProcessorStep):
+    """Maps policy actions back, by the embodiments its paired preprocessor saw (`joint_steps`), into the
+    actions' training range (a constant action entry comes out as that constant)."""
 
-    link: str = ""
     embodiments: list[str] = field(default_factory=list)
-    hand: str | None = None
-    """The attached hand, when given (not saved); else the one the linked preprocessor saw."""
+    link: str = ""
+    """Read from checkpoints saved before LeRobot paired the steps; unused."""
 
     def __call__(self, transition):
         new = transition.copy()
         action = new[TransitionKey.ACTION]
         names = self.embodiments or [str(i) for i in range(len(self.tables[f"{ACTION}.shift"]))]
-        ids = embodiment_ids(self.link, len(action), names, self.hand).to(action.device)
+        ids = single_slot(paired_frames(self, len(action), names).ids).to(action.device)
         x = action * self._table(ACTION, "scale", action, ids) + self._table(ACTION, "shift", action, ids)
         low, high = self._table(ACTION, "low", action, ids), self._table(ACTION, "high", action, ids)
         new[TransitionKey.ACTION] = x.clamp(low, high)
         return new
 
     def get_config(self) -> dict[str, Any]:
-        return {"keys": [ACTION], "link": self.link, "embodiments": list(self.embodiments)}
+        return {"keys": [ACTION], "embodiments": list(self.embodiments)}

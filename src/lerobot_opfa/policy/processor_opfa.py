@@ -11,7 +11,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import logging
-import uuid
 from pathlib import Path
 from typing import Any
 
@@ -42,7 +41,7 @@ from lerobot_opfa.datasets.statistics import (
     read_statistics,
     statistics_of,
 )
-from lerobot_opfa.features import OBS_EMBODIMENT, OBS_HAND
+from lerobot_opfa.features import OBS_EMBODIMENT, OBS_HAND, single_slot
 from lerobot_opfa.galr import checkpoints
 from lerobot_opfa.galr.frozen import galr_fingerprint, known_hand_refs, load_galr
 from lerobot_opfa.galr.model import Galr
@@ -208,7 +207,7 @@ def _frame_statistics(
 
     ids = frames[OBS_EMBODIMENT].long() if layout.kind == "merged" else None
     out = encode(frames[OBS_STATE], ids, frames[ACTION])
-    ids = out[TransitionKey.OBSERVATION][OBS_EMBODIMENT]
+    ids = single_slot(out[TransitionKey.OBSERVATION][OBS_EMBODIMENT])
     wrist = len(config.wrist_names)
     if layout.kind == "merged":  # the joints only (cached z would not move with them)
         raw = frames[OBS_STATE][:, : wrist + len(UNIVERSAL_JOINT_NAMES)]
@@ -225,7 +224,6 @@ def _frame_statistics(
         len(config.embodiments),
         pooled,
     )
-    encoder.forget_last_batch()
     n_embodiments = len(config.embodiments)
     state = column_statistics(out[TransitionKey.OBSERVATION][OBS_STATE], ids, n_embodiments)
     return state, column_statistics(out[TransitionKey.ACTION], ids, n_embodiments), floor
@@ -277,6 +275,52 @@ def check_trainable_frames(config: OpfaConfig, layout: DatasetLayout, root: Path
             )
 
 
+@dataclasses.dataclass
+class PolicySpaceSteps:
+    """The steps between a robot's entries and the normalised policy space, built from a dataset: `opfa`
+    runs them in its pipelines, and a stock policy gets the same ones (`policy.stock`)."""
+
+    encode: OpfaEncodeJointsStep
+    normalize: OpfaNormalizeStep
+    unnormalize: OpfaUnnormalizeStep
+    decode: OpfaDecodeJointsStep
+
+
+def policy_space_steps(
+    config: OpfaConfig, meta: Any, layout: DatasetLayout, galr: Galr | None
+) -> PolicySpaceSteps:
+    """The joint map, the GaLR encode, the per-embodiment normalisation (fitted on `meta`'s frames) and
+    their inverses, for the config `resolve_config` filled from `meta`; the postprocessor's steps are
+    paired with the encode step (`joint_steps`)."""
+    cached = galr is not None and layout.latent_dim > 0  # policy_galr checked that this GaLR made them
+    shared = dict(
+        action_space=config.action_space,
+        embodiments=list(config.embodiments),
+        hand_refs=list(layout.hand_refs),
+        embodiment_joints=[list(joints) for joints in config.embodiment_joints],
+        wrist_dim=len(config.wrist_names),
+        galr_config=dataclasses.asdict(galr.config) if galr is not None else None,
+        joint_maps=[m.to_dict() for m in layout.joint_maps],
+        galr=galr,
+    )
+    encode = OpfaEncodeJointsStep(**shared, use_cached_latents=cached)
+    tables = _policy_space_tables(config, layout, encode, Path(meta.root))
+    normalize = OpfaNormalizeStep(
+        tables=tables,
+        names=[*config.wrist_names, *config.space.hand_names(encode)],
+        embodiments=list(config.embodiments),
+    )
+    unnormalize = OpfaUnnormalizeStep(
+        keys=[ACTION],
+        tables={k: v for k, v in tables.items() if k.startswith(ACTION)},
+        embodiments=list(config.embodiments),
+        relative_step=encode,
+    )
+    return PolicySpaceSteps(
+        encode, normalize, unnormalize, OpfaDecodeJointsStep(**shared, relative_step=encode)
+    )
+
+
 def make_opfa_pre_post_processors(
     config: OpfaConfig,
     dataset_stats: dict[str, dict[str, torch.Tensor]] | None = None,
@@ -296,25 +340,7 @@ def make_opfa_pre_post_processors(
     if config.uses_pointcloud:
         depth = [step for step in [depth_step(config, meta)] if step is not None]
         clouds = [PointCloudBatchStep(n_points=config.n_points)]
-    cached = galr is not None and layout.latent_dim > 0  # policy_galr checked that this GaLR made them
-    shared = dict(
-        action_space=config.action_space,
-        embodiments=list(config.embodiments),
-        hand_refs=list(layout.hand_refs),
-        embodiment_joints=[list(joints) for joints in config.embodiment_joints],
-        wrist_dim=len(config.wrist_names),
-        galr_config=dataclasses.asdict(galr.config) if galr is not None else None,
-        link=uuid.uuid4().hex,
-        joint_maps=[m.to_dict() for m in layout.joint_maps],
-        galr=galr,
-    )
-    encoder = OpfaEncodeJointsStep(
-        **shared,
-        hand=layout.embodiments[0] if layout.kind == "native" else None,
-        use_cached_latents=cached,
-    )
-    tables = _policy_space_tables(config, layout, encoder, Path(meta.root))
-    action_tables = {k: v for k, v in tables.items() if k.startswith(ACTION)}
+    steps = policy_space_steps(config, meta, layout, galr)
     return make_policy_processor_pipelines(
         input_steps=[
             RenameObservationsProcessorStep(rename_map={}),
@@ -322,20 +348,14 @@ def make_opfa_pre_post_processors(
             AddBatchDimensionProcessorStep(),
             *clouds,
             DeviceProcessorStep(device=config.device),
-            encoder,
-            OpfaNormalizeStep(
-                tables=tables,
-                names=[*config.wrist_names, *config.space.hand_names(encoder)],
-                embodiments=list(config.embodiments),
-            ),
+            steps.encode,
+            steps.normalize,
             NormalizerProcessorStep(features={}, norm_map=config.normalization_mapping),
         ],
         output_steps=[
             UnnormalizerProcessorStep(features={}, norm_map=config.normalization_mapping),
-            OpfaUnnormalizeStep(
-                keys=[ACTION], tables=action_tables, link=shared["link"], embodiments=shared["embodiments"]
-            ),
-            OpfaDecodeJointsStep(**shared),
+            steps.unnormalize,
+            steps.decode,
             DeviceProcessorStep(device="cpu"),
         ],
     )
