@@ -245,6 +245,53 @@ def test_a_robots_actions_come_back_in_its_entries_order_and_units(rigs, rig, sp
     assert torch.allclose(back[..., :body], original[..., :body], atol=1e-4), "the arm's joints as recorded"
 
 
+def test_the_simulator_and_a_robot_with_permuted_scaled_entries_go_through_the_same_joint_map_code(rigs):
+    """One policy, two robots of one hand: the arm's (its own order, 0-1000 units) and the simulator's
+    (body entries, then the joints in spec order). Both are split on the way in and joined on the way out
+    by a JointMap, each by its own, and each gets its own entries back."""
+    from unittest import mock
+
+    from lerobot_opfa.features import OBS_HAND
+    from lerobot_opfa.policy.joint_steps import OpfaEncodeJointsStep
+
+    _, pre, post, frames = make_policy(
+        rigs, "arm_inspire", action_space="raw", joint_map=str(rigs / "arm_inspire_map.yaml")
+    )
+    hand, units = load_hand("inspire"), inspire_units()
+    arm_state = frames[3][OBS_STATE][-1]
+    entries = dict(zip(frames.meta.features[OBS_STATE]["names"], arm_state.tolist(), strict=True))
+    joints = [units[j][0] * entries[e] + units[j][1] for e, j in INSPIRE.items()]
+    spec_order = [joints[list(INSPIRE.values()).index(j)] for j in hand.joint_names]
+    sim_state = torch.tensor([entries[a] for a in ARM] + spec_order)
+    used = []
+    split, join = JointMap.split, JointMap.join
+
+    def spy_split(self, x, key):
+        used.append(("split", key, self))
+        return split(self, x, key)
+
+    def spy_join(self, body, q):
+        used.append(("join", ACTION, self))
+        return join(self, body, q)
+
+    encoder = next(step for step in pre.steps if isinstance(step, OpfaEncodeJointsStep))
+
+    with mock.patch.object(JointMap, "split", spy_split), mock.patch.object(JointMap, "join", spy_join):
+        widths = {}
+        for name, observation in (
+            ("arm", {OBS_STATE: arm_state}),
+            ("simulator", {OBS_STATE: sim_state, OBS_HAND: "inspire"}),
+        ):
+            used.clear()
+            batch = pre({**observation, OBS_POINTCLOUD: frames[3][OBS_POINTCLOUD][-1]})
+            action = post(batch[OBS_STATE][:, None])  # the state as a one-step action: same entries
+            widths[name] = action.shape[-1]
+            assert [(op, key) for op, key, _ in used] == [("split", OBS_STATE), ("join", ACTION)], name
+            expected = encoder.robot_map(0, simulator=name == "simulator")
+            assert all(joint_map == expected for _, _, joint_map in used), name  # the decode step: a copy
+    assert widths == {"arm": len(ARM) + len(INSPIRE), "simulator": len(ARM) + hand.dof}
+
+
 def test_recorded_units_beyond_the_hands_limits_are_refused_before_training(rigs, tmp_path):
     wrong = write_map(
         tmp_path / "radians.yaml", "inspire", INSPIRE, drop=["hand.current"]

@@ -304,13 +304,11 @@ class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
                 return self._from_universal(x, ids[:, 0])
         else:
             index = self.robot_index(hand)
-            self.check_width(state, index, OBS_STATE, simulator)
-            if not isinstance(action, torch.Tensor):  # a live robot's (training frames are checked whole)
-                self.check_robot_state(state, index, simulator)
+            live = not isinstance(action, torch.Tensor)  # a robot's (training frames are checked whole)
             ids = torch.full((len(state), 1), index, dtype=torch.long, device=state.device)
 
             def convert(x, key):
-                return self._from_robot(x, index, key, simulator)
+                return self._from_robot(x, index, key, simulator, live)
 
         obs[OBS_STATE] = convert(state, OBS_STATE)
         if isinstance(action, torch.Tensor):
@@ -339,20 +337,16 @@ class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
             )
         return self.embodiments.index(name)
 
-    def check_robot_state(self, state: torch.Tensor, index: int, simulator: bool) -> None:
-        """A robot's joints near its hand's limits: a reading in other units would be encoded into a state
-        the policy never saw, without a word. (NaN is the state guard's, which names the entry.)"""
-        joint_map = self.robot_map(index, simulator)
-        q = joint_map.split(state, OBS_STATE)[1]
-        if not q.isfinite().all():
-            return
-        source = f"{OBS_STATE} of the robot" + ("" if simulator else f" (through {joint_map.source})")
-        self.model(index).check_within_limits(q.reshape(-1, q.shape[-1]), source, LIVE_LIMIT_TOLERANCE)
-
-    def _from_robot(self, x: torch.Tensor, index: int, key: str, simulator: bool) -> torch.Tensor:
-        """A robot's state or action -> the policy space (body entries, then the space's hand part)."""
+    def _from_robot(self, x: torch.Tensor, index: int, key: str, simulator: bool, live: bool) -> torch.Tensor:
+        """A robot's state or action -> the policy space (body entries, then the space's hand part). A live
+        robot's joints must be near its hand's limits: a reading in other units would be encoded into a
+        state the policy never saw, without a word (NaN is the state guard's, which names the entry)."""
         self.check_width(x, index, key, simulator)
-        body, q = self.robot_map(index, simulator).split(x, key)
+        joint_map = self.robot_map(index, simulator)
+        body, q = joint_map.split(x, key)
+        if live and q.isfinite().all():
+            source = f"{OBS_STATE} of the robot" + ("" if simulator else f" (through {joint_map.source})")
+            self.model(index).check_within_limits(q.reshape(-1, q.shape[-1]), source, LIVE_LIMIT_TOLERANCE)
         return torch.cat([body, self.space.from_joints(self, index, q)], dim=-1)
 
     # --- merged layout: wrist + universal joints [+ cached z] ----------------------------------------
