@@ -607,6 +607,16 @@ def test_interleaved_pipelines_of_one_checkpoint_act_each_for_its_own_hand(data,
     assert all(torch.equal(decoded[i], expected[hand]) for i, hand in enumerate(hands))
 
 
+def test_a_policy_given_an_observation_its_preprocessor_did_not_make_says_so(data):
+    policy, _, _, _ = make_policy(data, "merged")
+    policy.eval()
+    raw = native_observation("leap", torch.zeros(32 * 3))
+    batch = {k: v.unsqueeze(0) if isinstance(v, torch.Tensor) else v for k, v in raw.items()}
+    with pytest.raises(ValueError, match="was not made by this policy's preprocessor") as error:
+        policy.select_action(batch)
+    assert "\n" not in str(error.value)
+
+
 def test_a_preprocessed_observation_can_be_copied_pickled_and_saved(data, tmp_path):
     import copy
     import pickle

@@ -241,9 +241,18 @@ class OpfaPolicy(PreTrainedPolicy):
         return self.ddim.sample(denoise, noise)
 
     def check_observation(self, batch: dict[str, Tensor]) -> None:
-        """Every entry the policy reads is there, each colour camera at the size the policy was trained on
-        (its input features): a larger picture would be centre-cropped to another part of the view at
-        another scale without a word, and resizing cannot promise the same view."""
+        """The observation is one this policy's preprocessor made (the robot's entries mapped into the policy
+        space, its embodiment named), and every entry the policy reads is there, each colour camera at the
+        size the policy was trained on (its input features): a larger picture would be centre-cropped to
+        another part of the view at another scale without a word, and resizing cannot promise the same
+        view."""
+        state = batch.get(OBS_STATE)
+        if OBS_EMBODIMENT not in batch or (state is not None and state.shape[-1] != self.config.policy_width):
+            raise ValueError(
+                "this observation was not made by this policy's preprocessor (it has no "
+                f"{OBS_EMBODIMENT}, or its state is not {self.config.policy_width} wide): pass it through "
+                "the preprocessor of make_pre_post_processors(policy.config, pretrained_path=...) first"
+            )
         missing = [k for k in self.observation_keys if k not in batch]
         if missing:
             raise ValueError(
