@@ -617,6 +617,18 @@ def test_a_policy_given_an_observation_its_preprocessor_did_not_make_says_so(dat
     assert "\n" not in str(error.value)
 
 
+def test_embodiment_ids_are_read_per_slot_and_two_hands_are_not_read_as_a_history():
+    from lerobot_opfa.features import frame_embodiments
+
+    histories = (torch.tensor([[2, 2], [0, 0]]), torch.tensor([[[2], [2]], [[0], [0]]]))
+    for ids in (torch.tensor([2, 0]), torch.tensor([[2], [0]]), *histories):
+        assert frame_embodiments(ids).tolist() == [[2], [0]]
+    for two_hands in (torch.tensor([[2, 1], [0, 1]]), torch.tensor([[[1], [2]], [[0], [0]]])):
+        with pytest.raises(ValueError, match=r"names several hands in one row"):
+            frame_embodiments(two_hands)
+    assert frame_embodiments(torch.tensor([[2, 1], [0, 1]]), slots=2).tolist() == [[2, 1], [0, 1]]
+
+
 def test_a_preprocessed_observation_can_be_copied_pickled_and_saved(data, tmp_path):
     import copy
     import pickle

@@ -9,12 +9,16 @@ OBS_HAND = "observation.hand"
 
 
 def frame_embodiments(ids, slots: int = 1):
-    """(B, slots) embodiment ids of a batch's latest frame, from `OBS_EMBODIMENT` of shape (B,), (B, slots)
-    or (B, n_obs_steps, slots) (a history never mixes hands). A policy has one hand slot per frame today."""
-    rows = ids.reshape(len(ids), -1)
-    if rows.shape[-1] % slots or (ids.dim() == 3 and ids.shape[-1] != slots):
-        raise ValueError(f"{OBS_EMBODIMENT} of shape {tuple(ids.shape)} does not hold {slots} hand slot(s)")
-    return rows[:, -slots:].long()
+    """(B, slots) embodiment ids of a batch's latest frame, from `OBS_EMBODIMENT` of shape (B,), (B, slots),
+    (B, n_obs_steps) (a one-slot history) or (B, n_obs_steps, slots). A row whose one-slot history names
+    several hands is two hands per frame, or a history that mixes hands: refused, not read as its last."""
+    rows = ids.reshape(len(ids), -1, slots)
+    if (rows != rows[:, -1:]).any():
+        raise ValueError(
+            f"{OBS_EMBODIMENT} of shape {tuple(ids.shape)} names several hands in one row: this policy has "
+            f"{slots} hand slot(s) per frame, and a frame's history never changes hands"
+        )
+    return rows[:, -1].long()
 
 
 def single_slot(ids):
