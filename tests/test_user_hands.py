@@ -63,7 +63,7 @@ def test_base_puts_a_vendor_model_in_the_hand_frame(user_shadow_spec, capsys):
     _edit(user_shadow_spec, lambda raw: raw.pop("base"))
     code, out = _check(user_shadow_spec, capsys)
     assert code == 0 and "FK vs MuJoCo" in out
-    assert "the fingers point 88 deg away from +z" in out
+    assert "the fingers point 89 deg away from +z" in out
     assert "the palm faces" in out and "1.24 m from the origin" in out
 
 
@@ -112,7 +112,7 @@ def test_sign_flips_a_joint_into_the_universal_sense(user_shadow_spec):
     assert torch.equal(hand.from_universal(universal), q)
 
 
-def test_check_warns_about_a_finger_that_flexes_away_from_the_palm(tmp_path, capsys):
+def test_check_refuses_a_finger_that_flexes_away_from_the_palm(tmp_path, capsys):
     spec = tmp_path / "inspire" / "spec.yaml"
     shutil.copytree(hand_models_dir() / "inspire", spec.parent)
     code, out = _check(spec, capsys)
@@ -120,8 +120,9 @@ def test_check_warns_about_a_finger_that_flexes_away_from_the_palm(tmp_path, cap
     _edit(spec, lambda raw: raw.update(name="my_inspire"))  # an edited built-in is a hand of its own
     _edit(spec, lambda raw: raw["joints"].update(index_mcp_flex={"universal": "index_mcp_flex", "sign": -1}))
     code, out = _check(spec, capsys)
-    assert code == 0 and "joint 'index_mcp_flex' (index_mcp_flex) bends its finger away from the palm" in out
-    assert out.count("WARNING") == 1
+    assert code == 1 and "WARNING" not in out
+    assert "PROBLEM: 1 flexion joint(s) curl their finger away from the palm" in out
+    assert "remove `sign: -1` from joint(s) 'index_mcp_flex' in `joints`" in out
 
 
 def test_links_labelled_null_are_simulated_but_not_in_the_cloud(user_shadow_spec):

@@ -39,13 +39,17 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     check = hands.add_parser("check", help="check a spec against its model (FK vs MuJoCo, couplings, poses)")
     check.add_argument("hand")
     check.add_argument("--png")
+    check.add_argument(
+        "--suggest", action="store_true", help="print the base, side and signs measured, as YAML"
+    )
     check.set_defaults(func=_check)
 
 
 def _check(args: argparse.Namespace) -> int:
     from lerobot_opfa.hands import validate
 
-    return validate.main([args.hand] + (["--png", args.png] if args.png else []))
+    flags = (["--png", args.png] if args.png else []) + (["--suggest"] if args.suggest else [])
+    return validate.main([args.hand, *flags])
 
 
 def _joints(args: argparse.Namespace) -> int:

@@ -19,6 +19,7 @@ from lerobot_opfa.hands.universal import FINGERS, UNIVERSAL_INDEX
 from lerobot_opfa.yaml_files import YamlFileError, read_yaml
 
 KINDS = ("hand", "gripper")
+SIDES = ("right", "left")
 MODEL_SUFFIXES = (".urdf", ".xml", ".mjcf")
 
 
@@ -75,6 +76,8 @@ class HandSpec:
     base: BaseFrame = field(default_factory=BaseFrame)
     finger_roots: dict[int, str] = field(default_factory=dict)
     """Finger u -> its first model joint or link, where the kinematic tree cannot tell (a gripper's jaws)."""
+    side: str = "right"
+    """Which hand the model is; `hands check` compares it with the side the thumb is on."""
 
     @property
     def actuated_joints(self) -> list[str]:
@@ -121,6 +124,9 @@ class HandSpec:
         kind = raw.get("kind", "hand")
         if kind not in KINDS:
             raise HandSpecError(path, "kind", f"'{kind}' is not one of {list(KINDS)}")
+        side = raw.get("side", "right")
+        if side not in SIDES:
+            raise HandSpecError(path, "side", f"'{side}' is not one of {list(SIDES)}")
         model_path = (path.parent / _required(raw, "model", str, path)).resolve()
         if model_path.suffix.lower() not in MODEL_SUFFIXES:
             raise HandSpecError(path, "model", f"'{model_path.name}' is neither URDF (.urdf) nor MJCF (.xml)")
@@ -162,6 +168,7 @@ class HandSpec:
             ignored,
             base,
             finger_roots,
+            side,
         )
 
     def check_joints(self, joint_names: list[str]) -> None:
@@ -217,7 +224,7 @@ class HandSpec:
 
 
 FIELDS = (
-    *("name", "kind", "model", "description", "base"),
+    *("name", "kind", "side", "model", "description", "base"),
     *("joints", "couplings", "fixed", "fingers", "links", "poses"),
 )
 

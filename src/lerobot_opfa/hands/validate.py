@@ -1,12 +1,13 @@
 """Checks that a hand model and its spec describe the same, sensible hand.
 
-`python -m lerobot_opfa.hands.validate SPEC [--png OUT]` (also `lerobot-opfa hands check`): builds the
-`HandModel` (which enforces the spec's structure), prints the link labels it took from the kinematic tree
-(those the spec's `links` leaves out), compares its FK with MuJoCo's own kinematics, checks that couplings
-keep coupled joints within their limits, says where the fingers point and the palm faces (warning when
-that is not the documented frame, or a flexion joint bends away from the palm), and draws the open and
-grasp poses coloured by finger (the labels from the tree included).
-"""
+`python -m lerobot_opfa.hands.validate SPEC [--png OUT] [--suggest]` (also `lerobot-opfa hands check`): builds
+the `HandModel` (which enforces the spec's structure), prints the link labels it took from the kinematic
+tree (those the spec's `links` leaves out), compares its FK with MuJoCo's own kinematics, checks that
+couplings keep coupled joints within their limits, says where the fingers point and the palm faces and
+which hand it is, measured without the spec's signs (`hands.frame`; warning when that is not the documented
+frame), refuses flexion signs and a side that contradict the model, and draws the open and grasp poses
+coloured by finger (the labels from the tree included). `--suggest` prints the base, side and signs
+measured, as spec YAML."""
 
 from __future__ import annotations
 
@@ -17,17 +18,16 @@ import numpy as np
 import torch
 
 from lerobot_opfa.flags import OneLineParser, positive_int
+from lerobot_opfa.hands import frame
 from lerobot_opfa.hands.model import HandModel
 from lerobot_opfa.hands.mujoco_model import hand_mjspec
 from lerobot_opfa.hands.plot import plot_clouds
 from lerobot_opfa.hands.registry import load_hand
-from lerobot_opfa.hands.universal import FINGERS, UNIVERSAL_INDEX, UNIVERSAL_JOINTS
+from lerobot_opfa.hands.universal import FINGERS
 
 LIMIT_TOLERANCE = 1e-3
 FRAME_TOLERANCE_DEG = 30.0
 """How far the fingers' or palm's measured direction may lie from the documented +z / +y."""
-ORIGIN_TOLERANCE = 0.05
-"""Metres the hand may lie from its frame's origin (the wrist flange), or reach behind it."""
 FINGERS_POINT, PALM_FACES = np.array([0.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0])
 
 
@@ -72,29 +72,8 @@ def coupling_limit_problems(hand: HandModel) -> list[str]:
     return problems
 
 
-def _unit(v: np.ndarray) -> np.ndarray:
-    return v / max(float(np.linalg.norm(v)), 1e-12)
-
-
 def _degrees(a: np.ndarray, b: np.ndarray) -> float:
-    return float(np.degrees(np.arccos(np.clip(_unit(a) @ _unit(b), -1.0, 1.0))))
-
-
-def flexion_moves(hand: HandModel) -> dict[str, np.ndarray]:
-    """Each flexion joint's own fingertip displacement (hand frame) as the joint moves from 10 % to 40 % of
-    its range, the other joints in the open pose, signed so that it is the universal sense's flexion."""
-    tips = {u: i for i, u in enumerate(sorted({hand.spec.links[link][0] for link in hand.fingertip_links}))}
-    moves = {}
-    for i, (joint, universal) in enumerate(zip(hand.joint_names, hand.universal_names, strict=True)):
-        finger = UNIVERSAL_JOINTS[UNIVERSAL_INDEX[universal]].finger
-        if not universal.endswith("_flex") or finger not in tips:
-            continue
-        q = hand.pose("open").repeat(2, 1)
-        low, span = hand.lower[i], hand.upper[i] - hand.lower[i]
-        q[:, i] = torch.tensor([low + 0.1 * span, low + 0.4 * span])
-        positions = hand.fingertip_positions(q)[:, tips[finger]].double().cpu().numpy()
-        moves[joint] = float(hand.universal_sign[i]) * (positions[1] - positions[0])
-    return moves
+    return float(np.degrees(np.arccos(np.clip(a @ b / np.linalg.norm(a) / np.linalg.norm(b), -1.0, 1.0))))
 
 
 def label_lines(hand: HandModel) -> list[str]:
@@ -112,48 +91,75 @@ def label_lines(hand: HandModel) -> list[str]:
     return lines
 
 
-def frame_report(hand: HandModel) -> tuple[list[str], list[str]]:
-    """(lines saying where the hand lies in its frame, warnings where that is not the documented frame)."""
-    cloud = hand.point_cloud(hand.pose("open")[None], 512)
-    points, fingers = cloud.points[0].double().cpu().numpy(), cloud.labels[0, :, 0].cpu().numpy()
-    tips = hand.fingertip_positions(hand.pose("open")[None])[0].double().cpu().numpy()
-    palm = points[fingers == 0].mean(0) if (fingers == 0).any() else points.mean(0)
-    pointing = _unit(tips.mean(0) - palm)
-    origin = float(np.linalg.norm(points, axis=1).min())
-    lines = [f"fingers point {np.round(pointing, 2).tolist()} (documented: +z)"]
-    warnings = []
-    if _degrees(pointing, FINGERS_POINT) > FRAME_TOLERANCE_DEG:
+def _joint_list(joints: list[str]) -> str:
+    return ", ".join(f"'{joint}'" for joint in joints)
+
+
+def frame_report(hand: HandModel) -> tuple[list[str], list[str], list[str]]:
+    """(lines saying where the hand lies, which hand it is and which way it flexes; warnings where that is
+    not the documented frame; problems where the spec's signs or side contradict the model)."""
+    measured = frame.measure(hand)
+    point, palm = measured.fingers_point, measured.palm_faces
+    named = ", ".join(FINGERS[u] for u in measured.pointing_fingers)
+    lines = [f"fingers point {np.round(point, 2).tolist()} (documented: +z), measured along the {named}"]
+    warnings, problems, off = [], [], []
+    if _degrees(point, FINGERS_POINT) > FRAME_TOLERANCE_DEG:
+        off.append(f"the fingers point {_degrees(point, FINGERS_POINT):.0f} deg away from +z")
+    if palm is not None:
+        lines.append(f"palm faces {np.round(palm, 2).tolist()} (documented: +y): where the fingers curl")
+        if _degrees(palm, PALM_FACES) > FRAME_TOLERANCE_DEG:
+            off.append(f"the palm faces {_degrees(palm, PALM_FACES):.0f} deg away from +y")
+    elif hand.spec.kind == "hand":
         warnings.append(
-            f"the fingers point {_degrees(pointing, FINGERS_POINT):.0f} deg away from +z: give the spec a "
-            "`base` (link, xyz, rpy) that puts the model in the documented hand frame"
+            "the flexion joints' ranges reach as far both ways from 0, so the palm's side and the signs of "
+            "the fingers' flexions are not checked: look at the `--png` picture"
         )
-    moves = flexion_moves(hand) if hand.spec.kind == "hand" else {}  # a gripper's jaws close sideways
-    if moves:
-        flexion = sum(_unit(m) for m in moves.values())
-        facing = _unit(flexion - (flexion @ pointing) * pointing)
-        lines.append(f"palm faces {np.round(facing, 2).tolist()} (documented: +y)")
-        if _degrees(facing, PALM_FACES) > FRAME_TOLERANCE_DEG:
-            warnings.append(
-                f"the palm faces {_degrees(facing, PALM_FACES):.0f} deg away from +y: rotate the model "
-                "about z with the spec's `base.rpy`"
-            )
-        for joint, move in moves.items():
-            if np.linalg.norm(move) > 1e-4 and _unit(move) @ facing < -0.3:
-                warnings.append(
-                    f"joint '{joint}' ({hand.spec.joints[joint]}) bends its finger away from the palm: if "
-                    "the vendor's sense is the opposite of the universal table's, map it with `sign: -1`"
-                )
-    behind = float(-(points @ FINGERS_POINT).min())
     lines.append(
-        f"nearest point of the hand {origin * 1000:.0f} mm from the origin, farthest behind it "
-        f"{max(0.0, behind) * 1000:.0f} mm (documented: the origin at the wrist flange, the hand in front)"
+        f"nearest point of the hand {measured.nearest * 1000:.0f} mm from the origin, farthest behind it "
+        f"{measured.behind * 1000:.0f} mm (documented: the origin at the wrist flange, the hand in front)"
     )
-    if origin > ORIGIN_TOLERANCE or behind > ORIGIN_TOLERANCE:
-        warnings.append(
-            f"the hand lies {origin:.2f} m from the origin and reaches {behind:.2f} m behind it: set the "
-            "spec's `base` (link, xyz) at the wrist"
+    if frame.origin_is_off(measured):
+        off.append(
+            f"the hand lies {measured.nearest:.2f} m from the origin, {measured.behind:.2f} m behind it"
         )
-    return lines, warnings
+    if off:
+        base = frame.suggested_base(hand, measured)
+        fix = "a `base` (link, xyz, rpy)" if base is None else f"`{frame.base_yaml(base)}`"
+        warnings.append(f"{'; '.join(off)}: put the model in the documented hand frame with {fix}")
+
+    if measured.side is not None:
+        thumb = "-x" if measured.side == "right" else "+x"
+        lines.append(f"a {measured.side} hand: the thumb on {thumb} (spec: {hand.spec.side})")
+        if measured.side != hand.spec.side:
+            problems.append(
+                f"the model is a {measured.side} hand (its thumb on {thumb}, the palm on +y, the fingers on "
+                f"+z), the spec a {hand.spec.side} one: use the vendor's {hand.spec.side}-hand model, or "
+                f"declare `side: {measured.side}`"
+            )
+    if measured.flexion:
+        cosines: dict[int, list[str]] = {}
+        for joint, cosine in measured.flexion.items():
+            cosines.setdefault(frame.finger_of(hand.spec.joints[joint]), []).append(f"{cosine:+.2f}")
+        listed = "; ".join(f"{FINGERS[u]} {' '.join(c)}" for u, c in sorted(cosines.items()))
+        lines.append(f"flexion towards the palm (the thumb's: the fingertips), cosine per joint: {listed}")
+    flip = frame.signs_to_flip(measured)
+    if flip:
+        add = [j for j in flip if j not in hand.spec.signs]
+        drop = [j for j in flip if j in hand.spec.signs]
+        fixes = ([f"add `sign: -1` to joint(s) {_joint_list(add)}"] if add else []) + (
+            [f"remove `sign: -1` from joint(s) {_joint_list(drop)}"] if drop else []
+        )
+        problems.append(
+            f"{len(flip)} flexion joint(s) curl their finger away from the palm (a thumb: from the "
+            f"fingertips), against the universal sense: {' and '.join(fixes)} in `joints` (`--suggest`)"
+        )
+    unclear = frame.unclear_flexions(measured)
+    if unclear:
+        warnings.append(
+            f"joint(s) {_joint_list(unclear)} move their fingertip neither towards nor away from the palm at "
+            "q = 0, so their signs are not checked: look at the `--png` picture"
+        )
+    return lines, warnings, problems
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -161,6 +167,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("hand", help="built-in hand name or path to a spec.yaml")
     parser.add_argument("--png", help="draw the open and grasp poses to this PNG")
     parser.add_argument("--n-points", type=positive_int, default=2048)
+    parser.add_argument(
+        "--suggest", action="store_true", help="print the base, side and signs measured, as spec YAML"
+    )
     args = parser.parse_args(argv)
 
     hand = load_hand(args.hand)
@@ -175,7 +184,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"  FK vs MuJoCo: {position_error:.1e} m, {rotation_error:.1e}")
     mj = hand_mjspec(hand).compile()
     print(f"  MuJoCo: {mj.nbody} bodies, {mj.njnt} joints, {mj.nu} actuators, {mj.neq} couplings")
-    lines, warnings = frame_report(hand)
+    lines, warnings, frame_problems = frame_report(hand)
+    problems += frame_problems
     for line in lines:
         print(f"  {line}")
     if args.png:
@@ -190,6 +200,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  WARNING: {warning}")
     for problem in problems:
         print(f"  PROBLEM: {problem}")
+    if args.suggest:
+        print("\n".join(frame.suggestion(hand, frame.measure(hand))))
     return 1 if problems else 0
 
 

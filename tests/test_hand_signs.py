@@ -1,0 +1,214 @@
+"""`hands check` tells a wrong joint sign from a turned frame, and a right hand from its mirror, by geometry
+that does not depend on the spec's signs (the fingers' roots and tips, the side their ranges curl to, the
+thumb's side). The built-in hands and the vendor models as they ship pass with no warning; one finger's
+signs flipped, every sign flipped, the hand turned half a turn with every sign flipped (what a palm
+measured from the flexions called a frame to rotate) and a mirrored model are refused, naming the fix;
+`--suggest` prints the base and signs that undo it."""
+
+from __future__ import annotations
+
+import math
+import re
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from conftest import BUILTIN_HANDS, example_robot_data_allegro
+
+from lerobot_opfa.cli import main
+from lerobot_opfa.hands import frame, load_hand, load_spec
+from lerobot_opfa.hands.registry import builtin_hands
+from lerobot_opfa.hands.validate import frame_report
+
+HANDS = [name for name in BUILTIN_HANDS if load_spec(name).kind == "hand"]
+VENDORS = ["user_allegro_spec", "user_shadow_spec"]
+
+
+@pytest.fixture(params=HANDS + VENDORS)
+def spec(request, tmp_path) -> Path:
+    """A correct spec: a built-in's, copied to be edited (renamed: an edited built-in is a hand of its
+    own), or a vendor model's as the tests' data gives it."""
+    if request.param in VENDORS:
+        return request.getfixturevalue(request.param)
+    source = builtin_hands()[request.param]
+    raw = yaml.safe_load(source.read_text())
+    raw.update(name=f"my_{raw['name']}", model=str(source.parent / raw["model"]))
+    return _write(tmp_path / request.param / "spec.yaml", raw)
+
+
+def _write(path: Path, raw: dict) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(yaml.safe_dump(raw, sort_keys=False))
+    return path
+
+
+def _edited(spec: Path, change) -> Path:
+    raw = yaml.safe_load(spec.read_text())
+    change(raw)
+    return _write(spec.parent / "edited" / "spec.yaml", raw)
+
+
+def _flip(raw: dict, joints) -> None:
+    for joint in joints:
+        entry = raw["joints"][joint]
+        universal, sign = (
+            (entry["universal"], entry.get("sign", 1)) if isinstance(entry, dict) else (entry, 1)
+        )
+        raw["joints"][joint] = universal if sign == -1 else {"universal": universal, "sign": -1}
+
+
+def _flexions(spec: Path, finger: str = "") -> list[str]:
+    """The spec's flexion joints (of one finger when given), as `hands check` names them."""
+    joints = load_spec(spec).joints
+    return [j for j, u in joints.items() if u.endswith("_flex") and u.startswith(finger)]
+
+
+def _signs(spec: Path, joints: list[str]) -> dict[str, float]:
+    signs = load_spec(spec).signs
+    return {joint: signs.get(joint, 1.0) for joint in joints}
+
+
+def _turned_half(raw: dict) -> None:
+    """The hand frame turned half a turn about z (the fix a palm measured from the flexions asked for)."""
+    base = raw.setdefault("base", {})
+    turned = frame._rpy_matrix(base.get("rpy", [0, 0, 0])) @ frame._rpy_matrix((0.0, 0.0, math.pi))
+    base["rpy"] = list(frame._matrix_rpy(turned))
+
+
+def _flipped_joints(problems: list[str]) -> set[str]:
+    (problem,) = problems
+    return set(re.findall(r"'([^']+)'", problem))
+
+
+def test_a_correct_spec_passes_with_no_warning(spec):
+    hand = load_hand(spec)
+    lines, warnings, problems = frame_report(hand)
+    assert warnings == [] and problems == [], (lines, warnings, problems)
+    measured = frame.measure(hand)
+    assert measured.side == "right"
+    # The built-ins' and vendors' documented frames lie within 9 deg of what is measured (tolerance: 30).
+    assert np.degrees(np.arccos(measured.fingers_point[2])) < 9
+    assert np.degrees(np.arccos(measured.palm_faces[1])) < 7
+    assert min(measured.flexion.values()) > 0.75  # every flexion, thumbs included, clearly the right way
+    assert set(measured.flexion) == set(_flexions(spec))
+
+
+def test_one_fingers_signs_flipped_are_refused_naming_them(spec):
+    index = [j for j, u in load_spec(spec).joints.items() if u.startswith("index_")]
+    edited = _edited(spec, lambda raw: _flip(raw, index))
+    lines, warnings, problems = frame_report(load_hand(edited))
+    assert warnings == []
+    assert _flipped_joints(problems) == set(_flexions(spec, "index_"))
+    assert "curl their finger away from the palm" in problems[0]
+    assert "remove `sign: -1` from joint(s)" in problems[0]  # the sign the edit added
+
+
+def test_every_sign_flipped_is_a_sign_problem_not_a_frame_to_rotate(spec):
+    edited = _edited(spec, lambda raw: _flip(raw, list(raw["joints"])))
+    lines, warnings, problems = frame_report(load_hand(edited))
+    assert warnings == [], warnings  # the palm is where it was: nothing to rotate
+    assert _flipped_joints(problems) == set(_flexions(spec))
+
+
+def test_turned_with_every_sign_flipped_is_refused_and_suggest_undoes_both(spec, capsys):
+    """The old check's trap: told to rotate a hand whose fingers all flex negative, the user got a hand with
+    the thumb on the wrong side and every flexion inverted, which then passed."""
+    edited = _edited(spec, lambda raw: (_turned_half(raw), _flip(raw, list(raw["joints"]))))
+    assert main(["hands", "check", str(edited), "--suggest"]) == 1
+    out = capsys.readouterr().out
+    assert re.search(
+        r"WARNING: the palm faces 1[78]\d deg away from \+y: put the model in the documented", out
+    )
+    assert "PROBLEM: " in out and "flexion joint(s) curl their finger away from the palm" in out
+
+    suggested = yaml.safe_load(out.split("# measured by `hands check --suggest`")[1].split("\n", 1)[1])
+    fixed = _edited(edited, lambda raw: raw.update(suggested))
+    assert main(["hands", "check", str(fixed)]) == 0
+    out = capsys.readouterr().out
+    assert "WARNING" not in out and "PROBLEM" not in out, out
+    assert _signs(fixed, _flexions(spec)) == _signs(spec, _flexions(spec))
+    rpy = lambda s: frame._rpy_matrix(load_spec(s).base.rpy)  # noqa: E731
+    assert np.allclose(rpy(fixed), rpy(spec), atol=1e-9)
+
+
+def test_a_vendor_model_whose_fingers_flex_negative_needs_signs_not_a_turn(tmp_path, capsys):
+    """The issue's LEAP: every flexion joint of the vendor's file turns the other way (axis and range
+    negated); a spec without signs is told which joints need `sign: -1`, and the frame is left alone."""
+    source = builtin_hands()["leap"]
+    raw = yaml.safe_load(source.read_text())
+    flexions = [joint for joint, universal in raw["joints"].items() if universal.endswith("_flex")]
+    tree = ET.parse(source.parent / raw["model"])
+    for joint in tree.iter("joint"):
+        if joint.get("name") in flexions:
+            axis, limit = joint.find("axis"), joint.find("limit")
+            axis.set("xyz", " ".join(str(-float(v)) for v in axis.get("xyz").split()))
+            lower, upper = float(limit.get("lower")), float(limit.get("upper"))
+            limit.set("lower", str(-upper))
+            limit.set("upper", str(-lower))
+    tree.write(tmp_path / "leap.urdf")
+    for pose in raw["poses"].values():
+        pose.update({joint: -value for joint, value in pose.items() if joint in flexions})
+    raw.update(name="vendor_leap", model=str(tmp_path / "leap.urdf"))
+    spec = _write(tmp_path / "spec.yaml", raw)
+    assert main(["hands", "check", str(spec), "--suggest"]) == 1
+    out = capsys.readouterr().out
+    assert "WARNING" not in out and "rotate" not in out
+    listed = ", ".join(f"'{joint}'" for joint in flexions)
+    assert f"against the universal sense: add `sign: -1` to joint(s) {listed} in `joints`" in out
+    suggested = yaml.safe_load(out.split("# measured by `hands check --suggest`")[1].split("\n", 1)[1])
+    assert "base" in suggested and suggested["base"]["rpy"] == [0.0, 0.0, 0.0]
+    assert _signs(_edited(spec, lambda raw: raw.update(suggested)), flexions) == dict.fromkeys(flexions, -1.0)
+
+
+def _mirrored_urdf(source: Path, target: Path) -> Path:
+    """The model reflected through its x = 0 plane: a left hand from a right one (primitive shapes, which a
+    reflection of their pose maps onto themselves)."""
+    tree = ET.parse(source)
+    for origin in tree.iter("origin"):
+        x, y, z = (float(v) for v in origin.get("xyz", "0 0 0").split())
+        roll, pitch, yaw = (float(v) for v in origin.get("rpy", "0 0 0").split())
+        origin.set("xyz", f"{-x} {y} {z}")
+        origin.set("rpy", f"{roll} {-pitch} {-yaw}")
+    for joint in tree.iter("joint"):
+        axis = joint.find("axis")
+        if axis is not None:  # a rotation axis is reflected and turned (a pseudo-vector)
+            x, y, z = (float(v) for v in axis.get("xyz").split())
+            axis.set("xyz", f"{x} {-y} {-z}")
+    tree.write(target)
+    return target
+
+
+@pytest.mark.parametrize("name", HANDS)
+def test_a_mirrored_builtin_is_refused_naming_its_side(name, tmp_path):
+    source = builtin_hands()[name]
+    raw = yaml.safe_load(source.read_text())
+    model = _mirrored_urdf(source.parent / raw["model"], tmp_path / "mirrored.urdf")
+    raw.update(name=f"my_{name}", model=str(model))
+    spec = _write(tmp_path / "spec.yaml", raw)
+    lines, warnings, problems = frame_report(load_hand(spec))
+    assert warnings == []
+    assert problems == [
+        "the model is a left hand (its thumb on +x, the palm on +y, the fingers on +z), the spec a right "
+        "one: use the vendor's right-hand model, or declare `side: left`"
+    ]
+    raw["side"] = "left"
+    assert frame_report(load_hand(_write(spec, raw)))[1:] == ([], [])
+
+
+def test_the_vendors_left_hand_under_a_right_hand_spec_is_refused(user_allegro_spec, capsys):
+    """example-robot-data ships the Allegro's mirror image too, with the same joint and link names."""
+    left = str(example_robot_data_allegro()).replace("allegro_right_hand", "allegro_left_hand")
+    spec = _edited(user_allegro_spec, lambda raw: raw.update(model=left))
+    assert main(["hands", "check", str(spec), "--suggest"]) == 1
+    out = capsys.readouterr().out
+    assert "PROBLEM: the model is a left hand" in out and "declare `side: left`" in out
+    assert "\nside: left\n" in out and "WARNING" not in out
+    assert main(["hands", "check", str(_edited(spec, lambda raw: raw.update(side="left")))]) == 0
+    assert "PROBLEM" not in capsys.readouterr().out
+
+
+def test_a_side_that_is_neither_is_an_error(spec):
+    with pytest.raises(ValueError, match=r"field 'side': 'up' is not one of \['right', 'left'\]"):
+        load_spec(_edited(spec, lambda raw: raw.update(side="up")))
