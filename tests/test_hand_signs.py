@@ -95,6 +95,34 @@ def test_a_correct_spec_passes_with_no_warning(spec):
     assert set(measured.flexion) == set(_flexions(spec))
 
 
+@pytest.mark.parametrize("name", [name for name in BUILTIN_HANDS if name not in HANDS])
+def test_a_gripper_is_checked_for_where_its_fingers_point_only(name):
+    """A gripper's jaws close sideways: no palm, side or flexion to judge."""
+    hand = load_hand(name)
+    assert frame_report(hand)[1:] == ([], [])
+    measured = frame.measure(hand)
+    assert measured.palm_faces is None and measured.side is None and measured.flexion == {}
+    assert np.degrees(np.arccos(measured.fingers_point[2])) < 9
+
+
+def test_ranges_that_do_not_tell_the_palm_leave_the_signs_unchecked_with_a_warning(tmp_path):
+    source = builtin_hands()["leap"]
+    raw = yaml.safe_load(source.read_text())
+    tree = ET.parse(source.parent / raw["model"])
+    for joint in tree.iter("joint"):
+        if raw["joints"].get(joint.get("name"), "").endswith("_flex"):
+            joint.find("limit").set("lower", "-1.0")
+            joint.find("limit").set("upper", "1.0")
+    tree.write(tmp_path / "leap.urdf")
+    raw.update(name="even_leap", model=str(tmp_path / "leap.urdf"), poses={"open": {}, "grasp": {}})
+    lines, warnings, problems = frame_report(load_hand(_write(tmp_path / "spec.yaml", raw)))
+    assert problems == []
+    assert warnings == [
+        "the flexion joints' ranges reach as far both ways from 0, so the palm's side and the signs of the "
+        "fingers' flexions are not checked: look at the `--png` picture"
+    ]
+
+
 def test_one_fingers_signs_flipped_are_refused_naming_them(spec):
     index = [j for j, u in load_spec(spec).joints.items() if u.startswith("index_")]
     edited = _edited(spec, lambda raw: _flip(raw, index))
