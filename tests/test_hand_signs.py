@@ -73,8 +73,8 @@ def _signs(spec: Path, joints: list[str]) -> dict[str, float]:
 def _turned_half(raw: dict) -> None:
     """The hand frame turned half a turn about z (the fix a palm measured from the flexions asked for)."""
     base = raw.setdefault("base", {})
-    turned = frame._rpy_matrix(base.get("rpy", [0, 0, 0])) @ frame._rpy_matrix((0.0, 0.0, math.pi))
-    base["rpy"] = list(frame._matrix_rpy(turned))
+    turned = frame.rpy_matrix(base.get("rpy", [0, 0, 0])) @ frame.rpy_matrix((0.0, 0.0, math.pi))
+    base["rpy"] = list(frame.matrix_rpy(turned))
 
 
 def _flipped_joints(problems: list[str]) -> set[str]:
@@ -157,7 +157,7 @@ def test_turned_with_every_sign_flipped_is_refused_and_suggest_undoes_both(spec,
     out = capsys.readouterr().out
     assert "WARNING" not in out and "PROBLEM" not in out, out
     assert _signs(fixed, _flexions(spec)) == _signs(spec, _flexions(spec))
-    rpy = lambda s: frame._rpy_matrix(load_spec(s).base.rpy)  # noqa: E731
+    rpy = lambda s: frame.rpy_matrix(load_spec(s).base.rpy)  # noqa: E731
     assert np.allclose(rpy(fixed), rpy(spec), atol=1e-9)
 
 

@@ -140,7 +140,7 @@ def unclear_flexions(frame: HandFrame) -> list[str]:
     return [joint for joint, cosine in frame.flexion.items() if abs(cosine) <= CLEAR]
 
 
-def _rpy_matrix(rpy: tuple[float, float, float]) -> np.ndarray:
+def rpy_matrix(rpy: tuple[float, float, float]) -> np.ndarray:
     """URDF's roll-pitch-yaw: R = Rz(yaw) Ry(pitch) Rx(roll)."""
     (cr, cp, cy), (sr, sp, sy) = np.cos(rpy), np.sin(rpy)
     return np.array(
@@ -152,7 +152,7 @@ def _rpy_matrix(rpy: tuple[float, float, float]) -> np.ndarray:
     )
 
 
-def _matrix_rpy(matrix: np.ndarray) -> tuple[float, float, float]:
+def matrix_rpy(matrix: np.ndarray) -> tuple[float, float, float]:
     pitch = float(np.arcsin(np.clip(-matrix[2, 0], -1.0, 1.0)))
     if abs(matrix[2, 0]) > 1 - 1e-9:  # gimbal lock: the roll is folded into the yaw
         return 0.0, pitch, float(np.arctan2(-matrix[0, 1], matrix[1, 1]))
@@ -184,8 +184,8 @@ def suggested_base(hand: HandModel, frame: HandFrame) -> BaseFrame | None:
     turn = np.stack([np.cross(y, z), y, z], 1)  # the measured axes, in the spec's hand frame
     nearest = max(_quarter_turns(), key=lambda q: float(np.trace(q.T @ turn)))
     angle = np.degrees(np.arccos(np.clip((np.trace(nearest.T @ turn) - 1) / 2, -1.0, 1.0)))
-    old = _rpy_matrix(hand.spec.base.rpy)
-    rpy = tuple(round(a, 10) + 0.0 for a in _matrix_rpy(old @ (nearest if angle <= SNAP_DEG else turn)))
+    old = rpy_matrix(hand.spec.base.rpy)
+    rpy = tuple(round(a, 10) + 0.0 for a in matrix_rpy(old @ (nearest if angle <= SNAP_DEG else turn)))
     xyz = np.array(hand.spec.base.xyz) + (old @ frame.wrist if origin_is_off(frame) else 0.0)
     return BaseFrame(hand.spec.base.link, tuple(round(float(v), 4) + 0.0 for v in xyz), rpy)
 
