@@ -15,6 +15,8 @@ import torch
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from subprocesses import run_command
 
+from lerobot_opfa import cli
+
 ENV = {**os.environ, "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1", "MUJOCO_GL": "egl"}
 HANDS = ("umi", "inspire")
 DEPTH = "observation.images.front_depth"
@@ -24,8 +26,9 @@ def lerobot(script: str, *flags: str) -> subprocess.CompletedProcess:
     return run_command([sys.executable, "-m", f"lerobot.scripts.{script}", *flags], env=ENV, timeout=600)
 
 
-def opfa(*argv: str) -> subprocess.CompletedProcess:
-    return run_command([sys.executable, "-m", "lerobot_opfa.cli", *argv], env=ENV, timeout=600)
+def opfa(*argv: str) -> None:
+    """A `lerobot-opfa` command in this process (the LeRobot CLIs above run as subprocesses)."""
+    assert cli.main(list(argv)) == 0, argv
 
 
 @pytest.fixture(scope="module")
@@ -44,13 +47,9 @@ def latent(tmp_path_factory) -> Path:
         )  # fmt: skip
         assert done.returncode == 0, done.stderr[-3000:]
     inputs = [str(root / hand) for hand in HANDS]
-    done = opfa(
-        "dataset", "merge", "--inputs", *inputs, "--output", str(root / "merged"), "--galr", "default"
-    )
-    assert done.returncode == 0, done.stderr[-3000:]
-    done = opfa("policy", "latent-dataset", "--input", str(root / "merged"), "--output", str(root / "latent"),
-                "--drop", DEPTH)  # fmt: skip
-    assert done.returncode == 0, done.stderr[-3000:]
+    opfa("dataset", "merge", "--inputs", *inputs, "--output", str(root / "merged"), "--galr", "default")
+    opfa("policy", "latent-dataset", "--input", str(root / "merged"), "--output", str(root / "latent"),
+         "--drop", DEPTH)  # fmt: skip
     return root / "latent"
 
 
@@ -77,7 +76,9 @@ STOCK = {
 
 
 @pytest.mark.parametrize("policy", sorted(STOCK))
-def test_a_stock_policy_trains_in_galr_space_and_lerobot_eval_runs_it_on_each_hand(latent, tmp_path, policy):
+def test_a_stock_policy_trains_in_galr_space_and_lerobot_eval_runs_it_on_each_hand(
+    latent, tmp_path, capsys, policy
+):
     done = lerobot(
         "lerobot_train", f"--policy.type={policy}", "--policy.device=cpu", "--policy.push_to_hub=false",
         "--policy.pretrained_backbone_weights=null", *STOCK[policy], "--dataset.repo_id=local/latent",
@@ -86,9 +87,8 @@ def test_a_stock_policy_trains_in_galr_space_and_lerobot_eval_runs_it_on_each_ha
     )  # fmt: skip
     assert done.returncode == 0, done.stderr[-3000:]
     trained = tmp_path / "train" / "checkpoints" / "last" / "pretrained_model"
-    done = opfa("policy", "convert-io", "--policy", str(trained), "--output", str(tmp_path / "joints"))
-    assert done.returncode == 0, done.stderr[-3000:]
-    assert "--env.policy_action_width=70" in done.stdout  # body 6 + z 64
+    opfa("policy", "convert-io", "--policy", str(trained), "--output", str(tmp_path / "joints"))
+    assert "--env.policy_action_width=70" in capsys.readouterr().out  # body 6 + z 64
     steps = json.loads((tmp_path / "joints" / "policy_postprocessor.json").read_text())["steps"]
     assert [s["registry_name"] for s in steps][-3:-1] == ["opfa_unnormalize", "opfa_decode_joints"]
     for hand in HANDS:
