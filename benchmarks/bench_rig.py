@@ -139,11 +139,14 @@ def record(stages: Stages, task: str, hand: str, demos: int, episode_s: float = 
 
 def evaluate(stages: Stages, task: str, hand: str, model: Path, episodes: int, n_points: int) -> dict:
     work = stages.work
-    deploy, out = work / f"deploy_{hand}", work / f"eval_{hand}"
+    deploy, out, pinned = work / f"deploy_{hand}", work / f"eval_{hand}", work / f"policy_{hand}"
+    # the rig's frames reach the policy without their robot: a copy of the checkpoint names it
+    pin = [str(BIN / "lerobot-opfa"), "policy", "for-robot", "--policy", str(model), "--hand", hand]
+    stages.run(f"pin_{hand}", [pinned], [*pin, "--output", str(pinned)])
     rollout = [
         str(BIN / "lerobot-rollout"),
         *rig_args(task, hand, deploy, DEPLOY_S, EVAL_SEED),
-        f"--policy.path={model}",
+        f"--policy.path={pinned}",
         "--strategy.type=episodic",
         "--strategy.reset_to_initial_position=false",
         f"--dataset.repo_id=local/rollout_{hand}",

@@ -629,6 +629,33 @@ def test_embodiment_ids_are_read_per_slot_and_two_hands_are_not_read_as_a_histor
     assert frame_embodiments(torch.tensor([[2, 1], [0, 1]]), slots=2).tolist() == [[2, 1], [0, 1]]
 
 
+def test_a_checkpoint_of_several_robots_is_pinned_to_one_for_frames_that_do_not_say(data, tmp_path, capsys):
+    """`lerobot-rollout` drops a robot's identity before the preprocessor: frames without one are refused
+    by a policy of several robots, and `policy for-robot` pins a copy to one of them."""
+    policy, pre, post, ds = make_policy(data, "merged")
+    policy.eval()
+    for obj in (policy, pre, post):
+        obj.save_pretrained(tmp_path / "all")
+    cloud = ds[0][OBS_POINTCLOUD][-1]
+    expected = rollout(policy, pre, post, "leap", cloud, steps=1)
+    silent = {k: v for k, v in native_observation("leap", cloud).items() if k != OBS_HAND}
+    with pytest.raises(
+        ValueError, match=r"drives several robots \(umi, inspire, leap\) and the frames do not"
+    ):
+        pre(dict(silent))
+    pin = ["policy", "for-robot", "--policy", str(tmp_path / "all"), "--output"]
+    assert cli.main([*pin, str(tmp_path / "nope"), "--hand", "shadow"]) == 2
+    assert "it cannot drive hand 'shadow'" in capsys.readouterr().err
+    assert not (tmp_path / "nope").exists()
+    assert cli.main([*pin, str(tmp_path / "leap"), "--hand", "leap"]) == 0
+    loaded = OpfaPolicy.from_pretrained(tmp_path / "leap").eval()
+    pre2, post2 = make_pre_post_processors(loaded.config, pretrained_path=str(tmp_path / "leap"))
+    torch.manual_seed(0)
+    with torch.no_grad():
+        action = post2(loaded.select_action(pre2(dict(silent))))
+    assert torch.equal(action, expected)
+
+
 def test_a_preprocessed_observation_can_be_copied_pickled_and_saved(data, tmp_path):
     import copy
     import pickle

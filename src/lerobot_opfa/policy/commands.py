@@ -32,6 +32,13 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     convert.add_argument("--output", type=Path, required=True)
     convert.add_argument("--hand", help="the robot of frames that do not say, for a policy of several")
     convert.set_defaults(func=_convert)
+    pin = policy.add_parser(
+        "for-robot", help="a copy of a checkpoint of several robots that drives one (for lerobot-rollout)"
+    )
+    pin.add_argument("--policy", type=Path, required=True, help="checkpoint folder (pretrained_model)")
+    pin.add_argument("--hand", required=True, help="the robot's hand, one the policy was trained on")
+    pin.add_argument("--output", type=Path, required=True)
+    pin.set_defaults(func=_pin)
 
 
 def _dataset(args: argparse.Namespace) -> None:
@@ -50,3 +57,10 @@ def _convert(args: argparse.Namespace) -> None:
         f"wrote {out}: the policy of {args.policy} with a joint-space interface; in lerobot-eval with "
         f"--env.type=opfa give it --env.policy_action_width={width} (its actions are body + z)"
     )
+
+
+def _pin(args: argparse.Namespace) -> None:
+    from lerobot_opfa.policy.deploy import pin_robot
+
+    out = pin_robot(args.policy, args.hand, args.output)
+    print(f"wrote {out}: the policy of {args.policy}, reading every frame as hand '{args.hand}'s robot")

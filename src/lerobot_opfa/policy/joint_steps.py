@@ -274,8 +274,9 @@ class FrameRobot:
 @dataclass
 class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
     hand: str | None = None
-    """The robot this pipeline drives when its frames do not say (a policy of several robots deployed
-    with `lerobot-rollout`; not saved). Frames that say, and one-robot policies, need none."""
+    """The robot this pipeline drives when its frames do not say: a policy of several robots deployed
+    with `lerobot-rollout` (`policy for-robot` saves it). Frames that say, and one-robot policies, need
+    none."""
     native_joint_names: list[str] = field(default_factory=list)
     """A step saved before `joint_maps`: the column order of `hand`'s joints (read, not saved)."""
     use_cached_latents: bool = False
@@ -357,7 +358,8 @@ class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
         return torch.cat([x[..., :w], self.space.from_universal(self, x[..., w:u], ids)], dim=-1)
 
     def get_config(self) -> dict[str, Any]:
-        return {**self.config_dict(), "use_cached_latents": self.use_cached_latents}
+        pinned = {} if self.hand is None else {"hand": self.hand}
+        return {**self.config_dict(), "use_cached_latents": self.use_cached_latents, **pinned}
 
     def state_dict(self) -> dict[str, torch.Tensor]:
         return self.galr_state("encoder.") | self.user_hands()

@@ -1,0 +1,39 @@
+"""`lerobot-opfa policy for-robot`: a copy of a checkpoint of several robots that drives one of them.
+
+A frame says which robot it comes from (`joint_steps`), but a robot's frames in `lerobot-rollout` cannot:
+LeRobot 0.6.1 passes `robot_type` with each observation and its converter (`batch_to_transition`) drops
+it before the preprocessor, and `lerobot-rollout` takes no processor overrides. So the checkpoint itself
+names the robot: its encode step's `hand`, saved with it. Nothing is guessed from a state's width, which
+two hands can share.
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+from lerobot.configs import PreTrainedConfig
+from lerobot.policies.factory import make_pre_post_processors
+
+from lerobot_opfa.datasets.io import atomic_directory
+from lerobot_opfa.policy.joint_steps import OpfaEncodeJointsStep
+
+
+def pin_robot(policy_dir: Path | str, hand: str, output: Path | str) -> Path:
+    """Copies the checkpoint folder `policy_dir` to `output` with its frames read as `hand`'s robot."""
+    policy_dir = Path(policy_dir)
+    if not (policy_dir / "config.json").is_file():
+        raise ValueError(f"{policy_dir}: not a checkpoint folder (no config.json; give its pretrained_model)")
+    config = PreTrainedConfig.from_pretrained(policy_dir)
+    pre, _ = make_pre_post_processors(config, pretrained_path=str(policy_dir))
+    encode = next((s for s in pre.steps if isinstance(s, OpfaEncodeJointsStep)), None)
+    if encode is None:
+        raise ValueError(
+            f"{policy_dir} does not map joints (a stock policy before `policy convert-io`): nothing to pin"
+        )
+    encode.robot_index(hand)  # one of its robots, or a one-line error naming them
+    encode.hand = hand
+    with atomic_directory(output) as partial:
+        shutil.copytree(policy_dir, partial)
+        pre.save_pretrained(partial)
+    return Path(output)
