@@ -240,3 +240,15 @@ def test_the_vendors_left_hand_under_a_right_hand_spec_is_refused(user_allegro_s
 def test_a_side_that_is_neither_is_an_error(spec):
     with pytest.raises(ValueError, match=r"field 'side': 'up' is not one of \['right', 'left'\]"):
         load_spec(_edited(spec, lambda raw: raw.update(side="up")))
+
+
+def test_a_hand_with_no_finger_link_is_one_line_naming_the_field(tmp_path, capsys):
+    """Every link labelled palm: nothing says where the hand points, and the check says so."""
+    source = builtin_hands()["inspire"]
+    raw = yaml.safe_load(source.read_text())
+    links = {link: [0, 0] for link in load_hand("inspire").link_names}
+    raw.update(name="no_fingers", model=str(source.parent / raw["model"]), links=links)
+    spec = _write(tmp_path / "no_fingers" / "spec.yaml", raw)
+    assert main(["hands", "check", str(spec)]) != 0
+    (last,) = capsys.readouterr().err.strip().splitlines()[-1:]
+    assert f"{spec}: field 'links': no link is labelled as a finger" in last

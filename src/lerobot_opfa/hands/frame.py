@@ -22,7 +22,7 @@ import numpy as np
 import torch
 
 from lerobot_opfa.hands.model import HandModel
-from lerobot_opfa.hands.spec import BaseFrame
+from lerobot_opfa.hands.spec import BaseFrame, HandSpecError
 from lerobot_opfa.hands.universal import UNIVERSAL_INDEX, UNIVERSAL_JOINTS
 
 THUMB = 1
@@ -71,6 +71,12 @@ def finger_of(universal: str) -> int:
 
 def measure(hand: HandModel) -> HandFrame:
     """The hand's frame, side and flexion senses, from its links, tips and ranges at q = 0."""
+    if not hand.fingertip_links:
+        raise HandSpecError(
+            hand.spec.path, "links", "no link is labelled as a finger, so nothing says where the hand "
+            "points: name each finger's first joint or link under `fingers:`, or label its links [finger, "
+            "segment]",
+        )  # fmt: skip
     rest = torch.zeros(hand.dof, dtype=torch.float64).clamp(hand.lower.double(), hand.upper.double())
     lower, upper = hand.lower.double(), hand.upper.double()
     steps = STEP * (upper - lower) * torch.where(rest + STEP * (upper - lower) <= upper, 1.0, -1.0)
