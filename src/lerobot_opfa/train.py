@@ -68,9 +68,13 @@ def train(argv: list[str]) -> None:
     _reuse_freed_memory()
     make = _in_memory(lerobot_train.make_train_eval_datasets)
     # LeRobot 0.6.1 offers no seam for any of the three, so they are swapped for this call only:
-    # - `train()` calls the module's `make_train_eval_datasets` by name and takes no dataset or factory;
-    # - `parser.wrap()` reads `sys.argv` itself (no argv parameter), as do `get_path_arg`'s callers;
-    # - draccus's error for a config's `__post_init__` hides the cause (`_parse_showing_cause`).
+    # - `train(cfg)` calls the module's `make_train_eval_datasets` by name and takes no dataset or factory;
+    # - `parser.wrap()` would take a parsed config instead of `sys.argv`, but
+    #   `TrainPipelineConfig.validate()` then reads `--policy.path` and `--reward_model.path` from
+    #   `sys.argv` itself (`parser.get_path_arg`), as does the wrapper's plugin loading
+    #   (`--*.discover_packages_path`): no argv parameter exists;
+    # - `parser.wrap()` catches only draccus's `DecodingError`; for a config's `__post_init__` error draccus
+    #   prints a generic line and exits, hiding the cause: `_parse_showing_cause` raises the cause instead.
     with (
         mock.patch.object(lerobot_train, "make_train_eval_datasets", make),
         mock.patch.object(draccus, "parse", _parse_showing_cause(draccus.parse)),
