@@ -131,7 +131,11 @@ class FastSampler:
         """(storage, version) of each U-Net parameter when the traces were made."""
 
     def denoiser(self, timesteps: list[int], cond: Tensor, head: Tensor | None = None):
-        """`denoise(x, i)` at the i-th of `timesteps`; the FiLM inputs of all steps are computed up front."""
+        """`denoise(x, i)` at the i-th of `timesteps`; the FiLM inputs of all steps are computed up front,
+        and the traces checked against the weights once for the chunk."""
+        weights = tuple((p.data_ptr(), p._version) for p in self.unet.parameters())
+        if weights != self.weights:
+            self.traces, self.weights = {}, weights
         b, n = len(cond), len(timesteps)
         t = torch.tensor(timesteps, device=cond.device).repeat_interleave(b)
         all_films = films(self.unet, t, cond.repeat(n, 1))
@@ -140,9 +144,6 @@ class FastSampler:
 
     def _traced(self, x: Tensor, step_films: tuple[Tensor, ...], head: Tensor | None) -> Tensor:
         inputs = (x, step_films) if head is None else (x, step_films, head)
-        weights = tuple((p.data_ptr(), p._version) for p in self.unet.parameters())
-        if weights != self.weights:
-            self.traces, self.weights = {}, weights
         key = (x.shape, x.device, x.dtype, head is None)
         if key not in self.traces:
             float16 = self.float16 and x.device.type == "cpu" and x.dtype == torch.float32
