@@ -14,18 +14,32 @@ from pathlib import Path
 
 from lerobot.configs import PreTrainedConfig
 from lerobot.policies.factory import make_pre_post_processors
+from lerobot.processor import PolicyProcessorPipeline
 
 from lerobot_opfa.datasets.io import atomic_directory
 from lerobot_opfa.policy.joint_steps import OpfaEncodeJointsStep
 
 
+def checkpoint_config(policy_dir: Path) -> PreTrainedConfig:
+    """The config of a checkpoint folder (its `pretrained_model`), or a one-line error."""
+    if not (policy_dir / "config.json").is_file():
+        raise ValueError(f"{policy_dir}: not a checkpoint folder (no config.json; give its pretrained_model)")
+    return PreTrainedConfig.from_pretrained(policy_dir)
+
+
+def write_copy(policy_dir: Path, output: Path | str, *pipelines: PolicyProcessorPipeline) -> Path:
+    """`policy_dir` copied to `output` (atomically) with `pipelines` saved over its own."""
+    with atomic_directory(output) as partial:
+        shutil.copytree(policy_dir, partial)
+        for pipeline in pipelines:
+            pipeline.save_pretrained(partial)
+    return Path(output)
+
+
 def pin_robot(policy_dir: Path | str, hand: str, output: Path | str) -> Path:
     """Copies the checkpoint folder `policy_dir` to `output` with its frames read as `hand`'s robot."""
     policy_dir = Path(policy_dir)
-    if not (policy_dir / "config.json").is_file():
-        raise ValueError(f"{policy_dir}: not a checkpoint folder (no config.json; give its pretrained_model)")
-    config = PreTrainedConfig.from_pretrained(policy_dir)
-    pre, _ = make_pre_post_processors(config, pretrained_path=str(policy_dir))
+    pre, _ = make_pre_post_processors(checkpoint_config(policy_dir), pretrained_path=str(policy_dir))
     encode = next((s for s in pre.steps if isinstance(s, OpfaEncodeJointsStep)), None)
     if encode is None:
         raise ValueError(
@@ -33,7 +47,4 @@ def pin_robot(policy_dir: Path | str, hand: str, output: Path | str) -> Path:
         )
     encode.robot_index(hand)  # one of its robots, or a one-line error naming them
     encode.hand = hand
-    with atomic_directory(output) as partial:
-        shutil.copytree(policy_dir, partial)
-        pre.save_pretrained(partial)
-    return Path(output)
+    return write_copy(policy_dir, output, pre)

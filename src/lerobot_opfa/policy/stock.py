@@ -16,13 +16,11 @@ normalises it again, the same at training and at inference.
 from __future__ import annotations
 
 import json
-import shutil
 import tempfile
 from pathlib import Path
 
 import numpy as np
 import torch
-from lerobot.configs import PreTrainedConfig
 from lerobot.datasets.dataset_metadata import LeRobotDatasetMetadata
 from lerobot.datasets.dataset_tools import modify_features, recompute_stats
 from lerobot.datasets.io_utils import write_info
@@ -48,6 +46,7 @@ from lerobot_opfa.datasets.layout import LATENT_ROBOT_TYPE
 from lerobot_opfa.datasets.merge import BOOKKEEPING
 from lerobot_opfa.features import OBS_EMBODIMENT
 from lerobot_opfa.policy.configuration_opfa import OpfaConfig
+from lerobot_opfa.policy.deploy import checkpoint_config, write_copy
 from lerobot_opfa.policy.joint_steps import OpfaEncodeJointsStep
 from lerobot_opfa.policy.processor_opfa import PolicySpaceSteps, policy_space_steps, resolve_config
 
@@ -154,10 +153,8 @@ def convert_checkpoint(
 ) -> Path:
     """Copies the stock checkpoint folder `policy_dir` to `output` with the steps of the policy-space
     dataset it was trained on (`dataset`, else the one its train_config.json names) around its own."""
-    policy_dir, output = Path(policy_dir), Path(output)
-    if not (policy_dir / "config.json").is_file():
-        raise ValueError(f"{policy_dir}: not a checkpoint folder (no config.json; give its pretrained_model)")
-    config = PreTrainedConfig.from_pretrained(policy_dir)
+    policy_dir = Path(policy_dir)
+    config = checkpoint_config(policy_dir)
     if config.type == "opfa":
         raise ValueError(f"{policy_dir} is an opfa policy: its processors already take and give joints")
     root = Path(dataset) if dataset is not None else _training_dataset(policy_dir)
@@ -173,11 +170,7 @@ def convert_checkpoint(
     pre.steps[at:at] = [steps.encode, steps.normalize]
     at = post_names.index("UnnormalizerProcessorStep") + 1
     post.steps[at:at] = [steps.unnormalize, steps.decode]
-    with atomic_directory(output) as partial:
-        shutil.copytree(policy_dir, partial)
-        pre.save_pretrained(partial)
-        post.save_pretrained(partial)
-    return output, config.output_features[ACTION].shape[0]
+    return write_copy(policy_dir, output, pre, post), config.output_features[ACTION].shape[0]
 
 
 def _training_dataset(policy_dir: Path) -> Path:
