@@ -18,7 +18,8 @@ from pathlib import Path
 from lerobot.utils.constants import ACTION, OBS_STATE
 
 from lerobot_opfa.datasets.io import OPFA_META_FILE, embedded_record, read_json
-from lerobot_opfa.datasets.joint_map import JointMap, closest_hands, joint_of, map_to_write
+from lerobot_opfa.datasets.joint_map import JointMap, joint_of
+from lerobot_opfa.datasets.map_hint import closest_hands, map_to_write
 from lerobot_opfa.features import OBS_EMBODIMENT
 from lerobot_opfa.hands.registry import builtin_hands, hand_ref, load_spec
 from lerobot_opfa.hands.spec import HandSpec
