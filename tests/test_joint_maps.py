@@ -18,7 +18,6 @@ from lerobot.utils.constants import ACTION, OBS_STATE
 from subprocesses import run_command
 from test_policy import ENV, batch_of, make_policy, save_galr
 
-from lerobot_opfa import cli
 from lerobot_opfa.datasets.io import read_columns
 from lerobot_opfa.datasets.joint_map import JointMap, JointMapError
 from lerobot_opfa.datasets.synthetic import write_synthetic_dataset
@@ -139,30 +138,6 @@ def rigs(tmp_path_factory) -> Path:
     write_map(root / "ghand_map.yaml", "leap", GHAND_FINGERS)
     write_map(root / "arm_inspire_map.yaml", "inspire", INSPIRE, units, drop=["hand.current"])
     return root
-
-
-def test_names_that_match_no_hand_name_the_closest_hand_and_the_map_to_write(rigs, tmp_path, capsys):
-    merge = ["dataset", "merge", "--inputs", str(rigs / "ghand"), "--galr", str(rigs / "galr")]
-    assert cli.main([*merge, "--output", str(tmp_path / "m")]) == 2
-    err = capsys.readouterr().err
-    assert "closest by joint structure: 'allegro', 'leap' (16 joints" in err  # the same joints, both named
-    suggested = err[err.index("hand: allegro") :].strip().splitlines()
-    assert suggested[0] == "hand: allegro  # or leap: the same joint structure"
-    assert "  right_hand.ring_mcp_side.pos: ring_mcp_abd" in suggested
-    # the user picks the hand they have; every pairing of the suggestion is right for this plugin's names
-    assert dict(line.strip().split(": ") for line in suggested[2:]) == GHAND_FINGERS
-    (tmp_path / "suggested.yaml").write_text("\n".join(["hand: leap", *suggested[1:]]) + "\n")
-    assert (
-        cli.main([*merge, "--output", str(tmp_path / "m"), "--joint-maps", str(tmp_path / "suggested.yaml")])
-        == 0
-    )
-    merged = read_columns(tmp_path / "m", [OBS_STATE])[OBS_STATE]
-    sim = read_columns(rigs / "leap_sim", [OBS_STATE])[OBS_STATE]
-    leap = load_hand("leap")
-    universal = leap.to_universal(torch.tensor(sim[:, 6:], dtype=torch.float32)).numpy()
-    assert np.allclose(merged[:, : universal.shape[1]], universal, atol=1e-6), (
-        "the merge reads the map's joints"
-    )
 
 
 def test_map_errors_are_one_line_naming_the_map_and_the_entry(rigs, tmp_path):

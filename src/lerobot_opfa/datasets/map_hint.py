@@ -1,64 +1,217 @@
 """When a robot's entry names match no hand: the closest hand by joint structure and names, and a joint map
-to start from (what `identify_hand`'s error prints)."""
+to start from (what `identify_hand`'s error prints).
+
+Entry names are read as words, whatever their case (`kLeftHandThumb0`, `right_hand.ring_mcp_side.pos`): a
+side, a finger, a motion. Only an entry that names a finger is proposed for a hand joint (an arm's
+`left_shoulder_pan.pos` never is); a two-armed robot gets a hand and a map per side. Where the dataset
+records its entries' ranges, the ranges pick between hands of the same structure and names (the one whose
+limits they fit) and propose the units of entries that plainly are not the spec's (degrees, 0..1000).
+"""
 
 from __future__ import annotations
 
+import math
 import re
+from collections import Counter
+from pathlib import Path
 
-from lerobot_opfa.hands.registry import hand_ref
+from lerobot.utils.constants import OBS_STATE
+
+from lerobot_opfa.datasets.io import read_json
+from lerobot_opfa.hands.model import LIMIT_TOLERANCE
+from lerobot_opfa.hands.registry import hand_ref, load_hand
 from lerobot_opfa.hands.spec import HandSpec
-from lerobot_opfa.hands.universal import FINGERS
 
 _SYNONYMS = {
     **dict.fromkeys(("side", "abduction", "spread", "lateral", "ab"), "abd"),
     **dict.fromkeys(("fwd", "forward", "flexion", "bend", "curl"), "flex"),
+    **dict.fromkeys(("rot", "rotate", "rotation", "opposition"), "yaw"),
+    **dict.fromkeys(("grasp", "jaw"), "gripper"),
     "pinky": "little",
 }
-"""Words vendors use for the universal table's motions (a LEAP plugin's `mcp_side` is `mcp_abd`)."""
+"""Vendors' words for the universal table's (a LEAP plugin's `mcp_side` is `mcp_abd`, a Unitree G1's
+`ThumbRotation` is `thumb_yaw`, a LeRobot arm's `gripper` is a gripper's jaw)."""
+
+FINGER_WORDS = ("thumb", "index", "middle", "ring", "little", "gripper")
+"""The first words of the universal joints' names: what an entry must name to be proposed for a joint of
+that finger (a palm joint is left to the user: `palm` also names wrist poses)."""
+
+UNITS_FACTOR = 3.0
+"""A recorded range this many times wider than a joint's range is in other units (degrees, 0..1000)."""
+
+DEGREE = math.pi / 180
 
 
-def _tokens(name: str) -> set[str]:
-    return {_SYNONYMS.get(t, t) for t in re.split(r"[^a-z0-9]+", name.lower()) if t}
+def _words(name: str) -> list[str]:
+    """`kLeftHandThumb0` -> k, left, hand, thumb, 0; `right_hand.ring_mcp_side.pos` -> right, hand, ring,
+    mcp, abd, pos (vendor words as the universal table's)."""
+    parts = re.findall(r"[A-Z]+(?![a-z])|[A-Z]?[a-z]+|[0-9]+", name)
+    return [_SYNONYMS.get(p.lower(), p.lower()) for p in parts]
+
+
+def _side(words: list[str]) -> str | None:
+    """`left`/`right` anywhere, or a leading `l`/`r` (`r_thumb_mcp`)."""
+    named = [w for w in words if w in ("left", "right")]
+    return named[0] if named else {"l": "left", "r": "right"}.get(words[0] if words else "")
+
+
+def _meaning(name: str) -> set[str]:
+    """An entry's or a joint's words but its side (a gripper's `left_knuckle` is not a left hand's)."""
+    words = _words(name)
+    lead = words[:1] if words[:1] in (["l"], ["r"]) else []
+    return set(words) - {"left", "right", *lead}
 
 
 def _finger(name: str) -> str | None:
-    return next((t for t in _tokens(name) if t in FINGERS[1:]), None)
+    return next((w for w in _words(name) if w in FINGER_WORDS), None)
 
 
-def _structure(joint_fingers: list[str | None]) -> dict[str | None, int]:
-    return {f: joint_fingers.count(f) for f in set(joint_fingers)}
+def _joint_finger(universal: str) -> str:
+    return universal.split("_")[0]
 
 
-def closest_hands(names: list[str], specs: list[HandSpec]) -> list[HandSpec]:
-    """The hands whose joint structure (joints per finger, then joint count, then shared words) is closest to
-    the entries'; several when they tie (LEAP and Allegro have the same joints)."""
-    entries = _structure([_finger(n) for n in names if _finger(n)])
-
-    def distance(spec: HandSpec) -> tuple[int, int, int]:
-        fingers = _structure([_finger(u) for u in spec.joints.values()])
-        per_finger = sum(abs(entries.get(f, 0) - fingers.get(f, 0)) for f in set(entries) | set(fingers) if f)
-        words = set().union(*map(_tokens, names))
-        shared = sum(len(words & (_tokens(j) | _tokens(u))) for j, u in spec.joints.items())
-        return per_finger, abs(len(names) - len(spec.joints)), -shared
-
-    best = min(map(distance, specs))
-    return [s for s in specs if distance(s) == best]
+def hand_sides(names: list[str]) -> dict[str | None, list[str]]:
+    """The entries of each side when both sides have entries that name a finger (a two-armed robot), else
+    all of them under None."""
+    by_side: dict[str | None, list[str]] = {}
+    for name in names:
+        by_side.setdefault(_side(_words(name)), []).append(name)
+    handed = [s for s in ("left", "right") if any(map(_finger, by_side.get(s, [])))]
+    return {s: by_side[s] for s in handed} if len(handed) > 1 else {None: list(names)}
 
 
-def map_to_write(names: list[str], spec: HandSpec, alternatives: list[HandSpec] = ()) -> str:
-    """A joint map for `spec` pairing each joint with the entry of its finger whose name shares the most
-    words with it (in order where they tie): a start for the user to check line by line, as YAML."""
-    free = list(names)
-    others = (
-        f"  # or {', '.join(a.name for a in alternatives)}: the same joint structure" if alternatives else ""
+def _shared(entry: str, joint: str, universal: str) -> int:
+    """Words an entry shares with a spec joint's name plus those it shares with its universal name."""
+    words = _meaning(entry)
+    return len(words & _meaning(joint)) + len(words & _meaning(universal))
+
+
+def _pairs(names: list[str], spec: HandSpec) -> dict[str, str]:
+    """Spec joint -> the entry proposed for it: an entry of its finger, the most shared words first (in the
+    spec's, then the entries' order where they tie); joints whose finger no entry names are left out."""
+    options = [
+        (joint, entry)
+        for joint, universal in spec.joints.items()
+        for entry in names
+        if _finger(entry) == _joint_finger(universal)
+    ]
+    options.sort(key=lambda o: -_shared(o[1], o[0], spec.joints[o[0]]))
+    pairs: dict[str, str] = {}
+    for joint, entry in options:
+        if joint not in pairs and entry not in pairs.values():
+            pairs[joint] = entry
+    return {j: pairs[j] for j in spec.joints if j in pairs}
+
+
+def _likeness(names: list[str], spec: HandSpec) -> tuple[int, int, int]:
+    """(joints per finger apart, joint count apart, minus the words the proposed pairs share and the entries
+    share with the hand's name): smaller is closer."""
+    entries = [n for n in names if _finger(n)]
+    mine, theirs = Counter(map(_finger, entries)), Counter(map(_joint_finger, spec.joints.values()))
+    per_finger = sum(((mine - theirs) + (theirs - mine)).values())
+    shared = sum(_shared(e, j, spec.joints[j]) for j, e in _pairs(names, spec).items())
+    brand = {w for w in _words(spec.name) if w.isalpha() and len(w) > 2}
+    named = len(brand & set().union(*map(_meaning, names)))
+    return per_finger, abs(len(entries) - len(spec.joints)), -(shared + named)
+
+
+def closest_hands(
+    names: list[str], specs: list[HandSpec], ranges: dict[str, tuple[float, float]] | None = None
+) -> list[HandSpec]:
+    """The hands closest to the entries by structure (joints per finger, then joint count), then names
+    (`_likeness`), then, where `ranges` are known, the fewest entries that fit the joint's limits in no plain
+    units; several when they tie (LEAP and Allegro have the same joints under the same names)."""
+    likeness = {s.path: _likeness(names, s) for s in specs}
+    best = min(likeness.values())
+    tied = [s for s in specs if likeness[s.path] == best]
+    if ranges and len(tied) > 1:
+        misfits = {s.path: _misfits(names, s, ranges) for s in tied}
+        tied = [s for s in tied if misfits[s.path] == min(misfits.values())]
+    return tied
+
+
+def recorded_ranges(root: Path | str | None, names: list[str]) -> dict[str, tuple[float, float]]:
+    """Per state entry, its (min, max) from the dataset's `meta/stats.json`; empty where it has none."""
+    path = Path(root) / "meta" / "stats.json" if root is not None else None
+    if path is None or not path.is_file():
+        return {}
+    stats = read_json(path).get(OBS_STATE, {})
+    low, high = stats.get("min"), stats.get("max")
+    if not isinstance(low, list) or not isinstance(high, list) or not len(low) == len(high) == len(names):
+        return {}
+    return {n: (float(lo), float(hi)) for n, lo, hi in zip(names, low, high, strict=True)}
+
+
+def _limits(spec: HandSpec) -> dict[str, tuple[float, float]]:
+    """Spec joint -> (lower, upper): the model's limits, in the spec's units."""
+    hand = load_hand(hand_ref(spec))
+    lower, upper = hand.lower.tolist(), hand.upper.tolist()
+    return {j: (lower[i], upper[i]) for i, j in enumerate(hand.joint_names)}
+
+
+def _fits(recorded: tuple[float, float], limits: tuple[float, float], scale: float = 1.0) -> bool:
+    low, high = sorted(scale * v for v in recorded)
+    slack = LIMIT_TOLERANCE * (limits[1] - limits[0])
+    return limits[0] - slack <= low and high <= limits[1] + slack
+
+
+def _misfits(names: list[str], spec: HandSpec, ranges: dict[str, tuple[float, float]]) -> int:
+    """Proposed entries whose recorded range fits the joint's limits neither as it is, nor in degrees, nor
+    the other way round: a sign that the robot carries another hand."""
+    limits = _limits(spec)
+    return sum(
+        not any(_fits(ranges[e], limits[j], s) for s in (1.0, -1.0, DEGREE, -DEGREE))
+        for j, e in _pairs(names, spec).items()
+        if e in ranges
     )
-    lines = [f"hand: {hand_ref(spec)}{others}", "joints:"]
-    for joint, universal in spec.joints.items():
-        finger = universal.split("_")[0]
-        candidates = [n for n in free if _finger(n) == finger] or free
-        if not candidates:
-            break
-        best = max(candidates, key=lambda n: len(_tokens(n) & (_tokens(joint) | _tokens(universal))))
-        free.remove(best)
-        lines.append(f"  {best}: {joint}")
+
+
+def units_from_range(
+    recorded: tuple[float, float], limits: tuple[float, float]
+) -> tuple[float, float] | None:
+    """(scale, offset) taking an entry's recorded range onto a joint's limits where they plainly differ: -1
+    where only the negated range fits, degrees where the range is many times the joint's and fits in degrees,
+    else the range stretched onto the limits; None where it fits as it is or is in the spec's units."""
+    low, high = recorded
+    if high == low or _fits(recorded, limits):
+        return None
+    if _fits(recorded, limits, -1.0):
+        return -1.0, 0.0
+    if high - low <= UNITS_FACTOR * (limits[1] - limits[0]):
+        return None
+    for scale in (DEGREE, -DEGREE):
+        if _fits(recorded, limits, scale):
+            return scale, 0.0
+    scale = (limits[1] - limits[0]) / (high - low)
+    return scale, limits[0] - scale * low
+
+
+def map_to_write(
+    names: list[str],
+    spec: HandSpec,
+    alternatives: list[HandSpec] = (),
+    ranges: dict[str, tuple[float, float]] | None = None,
+    side: str | None = None,
+) -> str:
+    """A joint map for `spec` pairing each joint with an entry of its finger (`_pairs`), with the units the
+    recorded `ranges` suggest: a start for the user to check line by line, as YAML. `side`: the side of a
+    two-armed robot whose entries these are, said in a comment (a map holds one hand)."""
+    pairs = _pairs(names, spec)
+    limits = _limits(spec) if ranges else {}
+    units = {j: units_from_range(ranges[e], limits[j]) for j, e in pairs.items() if ranges and e in ranges}
+    others = f"  # or {', '.join(a.name for a in alternatives)}: as close" if alternatives else ""
+    lines = [f"# the {side} hand's entries: a map (a file) of its own"] if side else []
+    if any(units.values()):
+        lines.append(
+            "# scale/offset: inferred from the recorded ranges (meta/stats.json) and the joint limits; "
+            "check them, and each sign"
+        )
+    lines += [f"hand: {hand_ref(spec)}{others}", "joints:"]
+    for joint, entry in pairs.items():
+        scaled = units.get(joint)
+        value = f"{{joint: {joint}, scale: {scaled[0]:.6g}, offset: {scaled[1]:.6g}}}" if scaled else joint
+        lines.append(f"  {entry}: {value}")
+    missing = [j for j in spec.joints if j not in pairs]
+    if missing:
+        lines.append(f"  # no entry names the finger of: {', '.join(missing)}")
     return "\n".join(lines)
