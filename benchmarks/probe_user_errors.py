@@ -1991,7 +1991,7 @@ def define_probes(fx: dict[str, Path], work: Path) -> list[Probe]:  # noqa: C901
         "from lerobot_opfa.policy.modeling_opfa import OpfaPolicy\n"
         f"policy = OpfaPolicy.from_pretrained({str(fx['checkpoint'])!r})\n"
         f"_, post = make_pre_post_processors(policy.config, pretrained_path={str(fx['checkpoint'])!r})\n"
-        "action = post(torch.zeros(1, policy.config.policy_width))\n",
+        "action = post(torch.zeros(1, policy.config.action_width))\n",
         w("policy_postprocessor_before_preprocessor"),
     )
 

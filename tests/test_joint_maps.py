@@ -144,7 +144,8 @@ def test_map_errors_are_one_line_naming_the_map_and_the_entry(rigs, tmp_path):
     meta = LeRobotDatasetMetadata("local/arm_inspire", root=rigs / "arm_inspire")
     state, action = meta.features[OBS_STATE]["names"], meta.features[ACTION]["names"]
     good = JointMap.load(rigs / "arm_inspire_map.yaml")
-    assert good.bind(state, action).body_names == ARM
+    assert good.bind(state, action).body_names(ACTION) == ARM
+    assert good.bind(state, action).body_names(OBS_STATE) == ARM  # hand.current dropped
     without_thumb = {k: v for k, v in INSPIRE.items() if k != "hand.thumb_rotate"}
     current = ["hand.current"]
     cases = [
@@ -160,7 +161,6 @@ def test_map_errors_are_one_line_naming_the_map_and_the_entry(rigs, tmp_path):
             "unknown \\['thumb_roll'\\]",
             dict(entries={**INSPIRE, "hand.thumb_rotate": "thumb_roll"}, drop=current),
         ),
-        ("observation.state entries \\['hand.current'\\] are not in action", dict(entries=INSPIRE)),
         (
             "drop lists 'arm.joint_1.pos', which is an action entry",
             dict(entries=INSPIRE, drop=[*current, "arm.joint_1.pos"]),
@@ -352,7 +352,7 @@ def test_image_goal_trains_the_first_pictures_features_on_the_episodes_last_wris
         image_feature_dim=8, image_goal=True,
     )  # fmt: skip
     config = policy.config
-    assert policy.image_goal.out_features == (goal or config.policy_width)
+    assert policy.image_goal.out_features == (goal or config.action_width)
     episode = frames.meta.episodes[0]
     first, last = episode["dataset_from_index"], episode["dataset_to_index"] - 1
     columns = frames.hf_dataset.with_format("torch")

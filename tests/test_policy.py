@@ -226,7 +226,9 @@ def test_policy_width_comes_from_the_config_alone(space, width):
     joints = [["index_mcp_flex", "thumb_mcp_flex"]]
     config = OpfaConfig(**POLICY, action_space=space, embodiments=["user_hand"], embodiment_joints=joints,
                         wrist_names=list("xyzabc"), latent_dim=8)  # fmt: skip
-    assert config.policy_width == width  # 28 universal joints
+    assert config.state_width == config.action_width == width  # 28 universal joints
+    config.action_body_names = ["dx", "dy", "dz"]  # an action of end-effector deltas
+    assert (config.state_width, config.action_width) == (width, width - 3)
 
 
 @pytest.mark.parametrize("space", sorted(ACTION_SPACES))

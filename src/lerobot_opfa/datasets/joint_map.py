@@ -13,9 +13,17 @@ A map is a small YAML file (docs/usage.md):
     robot_type: so101_ability       # only to confirm a dataset whose robot_type names another hand (optional)
 
 A spec joint's value is `scale * entry + offset`. Every other entry is body state (an arm's joints, a wrist
-pose in any convention) that the policy models as it is. A dataset whose hand entries are named after the
-spec's joints (or `<joint>.pos`) needs no file (`JointMap.named_after`). One hand per frame; a second
-would be a second list of joints here, nothing elsewhere.
+pose in any convention) that the policy models as it is. A robot whose state and action hold the hand
+under different entries (a gripper reading in -1..1, a grasp command in 0..1) gives them apart, each key
+naming every joint once (`joints` is shared by both):
+
+    state_joints: {gripper: {joint: left_jaw_joint, scale: -0.022, offset: 0.022}}  # umi's jaw, metres
+    action_joints: {grasp: {joint: left_jaw_joint, scale: -0.044, offset: 0.044}}
+
+Its state's body entries and its action's are then what is left of each: they may differ (arm joints in
+the state, end-effector deltas in the action). A dataset whose hand entries are named after the spec's
+joints (or `<joint>.pos`) needs no file (`JointMap.named_after`). One hand per frame; a second would be a
+second list of joints here, nothing elsewhere.
 """
 
 from __future__ import annotations
@@ -27,6 +35,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import torch
+from lerobot.utils.constants import ACTION, OBS_STATE
 
 from lerobot_opfa.hands.model import LIMIT_TOLERANCE
 from lerobot_opfa.hands.registry import builtin_hands, hand_ref, load_spec
@@ -63,7 +72,10 @@ class JointMap:
     hand: str
     """What `load_hand` takes: a built-in name or a spec path."""
     joints: dict[str, MappedJoint]
-    """Dataset entry -> the spec joint it holds."""
+    """Entry of both the state and the action -> the spec joint it holds."""
+    state_joints: dict[str, MappedJoint] = field(default_factory=dict)
+    action_joints: dict[str, MappedJoint] = field(default_factory=dict)
+    """Entries of only the state, or only the action -> the spec joint each holds (`key_joints`)."""
     drop: tuple[str, ...] = ()
     robot_type: str | None = None
     """The dataset `robot_type` the map is confirmed for when it names another hand (`check_robot_type`)."""
@@ -89,28 +101,41 @@ class JointMap:
 
     @classmethod
     def from_dict(cls, raw, source: str = "joint map") -> JointMap:
-        if not isinstance(raw, dict) or not isinstance(raw.get("joints"), dict) or not raw["joints"]:
-            raise JointMapError(f"{source}: needs a mapping 'joints' of dataset entry -> spec joint")
+        tables = ("joints", "state_joints", "action_joints")
+        if not isinstance(raw, dict) or not any(raw.get(t) for t in tables):
+            raise JointMapError(
+                f"{source}: needs a mapping 'joints' of dataset entry -> spec joint (or, where the state "
+                "and the action hold the hand under different entries, 'state_joints' and 'action_joints')"
+            )
         if not isinstance(raw.get("hand"), str):
             raise JointMapError(f"{source}: needs 'hand', a built-in hand's name or a spec.yaml path")
+        for table in tables:
+            if not isinstance(raw.get(table) or {}, dict):
+                raise JointMapError(f"{source}: '{table}' must be a mapping of dataset entry -> spec joint")
         joints = {
-            str(entry): _mapped_joint(value, f"{source}: entry '{entry}'")
-            for entry, value in raw["joints"].items()
+            table: {
+                str(entry): _mapped_joint(value, f"{source}: {table} entry '{entry}'")
+                for entry, value in (raw.get(table) or {}).items()
+            }
+            for table in tables
         }
         drop = raw.get("drop") or []
         if not isinstance(drop, list):
             raise JointMapError(f"{source}: 'drop' must be a list of entry names")
-        unknown = set(raw) - {"hand", "joints", "drop", "robot_type", "state_names", "action_names"}
+        unknown = set(raw) - {*tables, "hand", "drop", "robot_type", "state_names", "action_names"}
         if unknown:
             raise JointMapError(
-                f"{source}: unknown field(s) {sorted(unknown)} (hand, joints, drop, robot_type)"
+                f"{source}: unknown field(s) {sorted(unknown)} (hand, joints, state_joints, action_joints, "
+                "drop, robot_type)"
             )
         robot_type = raw.get("robot_type")
         if robot_type is not None and not isinstance(robot_type, str):
             raise JointMapError(f"{source}: 'robot_type' must be a dataset's robot_type, got {robot_type!r}")
         return cls(
             hand=raw["hand"],
-            joints=joints,
+            joints=joints["joints"],
+            state_joints=joints["state_joints"],
+            action_joints=joints["action_joints"],
             drop=tuple(map(str, drop)),
             robot_type=robot_type,
             source=source,
@@ -120,11 +145,19 @@ class JointMap:
 
     def to_dict(self) -> dict:
         """What a checkpoint or a merged dataset saves (with the names it is bound to)."""
+
+        def table(joints: dict[str, MappedJoint]) -> dict:
+            return {e: {"joint": j.joint, "scale": j.scale, "offset": j.offset} for e, j in joints.items()}
+
+        apart = {
+            name: table(joints)
+            for name, joints in (("state_joints", self.state_joints), ("action_joints", self.action_joints))
+            if joints
+        }
         return {
             "hand": self.hand,
-            "joints": {
-                e: {"joint": j.joint, "scale": j.scale, "offset": j.offset} for e, j in self.joints.items()
-            },
+            "joints": table(self.joints),
+            **apart,
             "drop": list(self.drop),
             **({"robot_type": self.robot_type} if self.robot_type is not None else {}),
             "state_names": list(self.state_names),
@@ -144,8 +177,8 @@ class JointMap:
         """This map checked against a robot's (a dataset's) state and action entries and the hand's spec."""
         state, action = list(map(str, state_names)), list(map(str, action_names))
         spec = load_spec(self.hand)
-        for entry in self.joints:
-            for key, names in (("observation.state", state), ("action", action)):
+        for key, names in ((OBS_STATE, state), (ACTION, action)):
+            for entry in self.key_joints(key):
                 if entry not in names:
                     near = difflib.get_close_matches(entry, names, n=3)
                     raise JointMapError(
@@ -155,36 +188,40 @@ class JointMap:
                             if near
                             else f" ({len(names)} entries: {names[:8]} ...)"
                         )
+                        + (
+                            "; an entry of only the state or only the action goes under 'state_joints' or "
+                            "'action_joints'"
+                            if entry in self.joints
+                            else ""
+                        )
                     )
-        held = [j.joint for j in self.joints.values()]
-        unknown = [j for j in held if j not in spec.joints]
-        twice = sorted({j for j in held if held.count(j) > 1})
-        missing = [j for j in spec.actuated_joints if j not in held]
-        if unknown or twice or missing:
-            raise JointMapError(
-                f"{self.source}: must name each joint of hand '{spec.name}' once "
-                f"({', '.join(spec.actuated_joints)}): unknown {unknown}, twice {twice}, missing {missing}"
-            )
+            held = [j.joint for j in self.key_joints(key).values()]
+            unknown = [j for j in held if j not in spec.joints]
+            twice = sorted({j for j in held if held.count(j) > 1})
+            missing = [j for j in spec.actuated_joints if j not in held]
+            if unknown or twice or missing:
+                raise JointMapError(
+                    f"{self.source}: must name each joint of hand '{spec.name}' once in {key} "
+                    f"({', '.join(spec.actuated_joints)}): unknown {unknown}, twice {twice}, "
+                    f"missing {missing}"
+                )
         for entry in self.drop:
-            if entry in self.joints or entry in action:
+            if entry in self.key_joints(OBS_STATE) or entry in action:
                 raise JointMapError(
                     f"{self.source}: drop lists '{entry}', which is "
                     + (
                         "a joint of the map"
-                        if entry in self.joints
+                        if entry in self.key_joints(OBS_STATE)
                         else "an action entry (the robot needs it)"
                     )
                 )
             if entry not in state:
                 raise JointMapError(f"{self.source}: drop lists '{entry}', which is not in observation.state")
-        body = [n for n in action if n not in self.joints]
-        state_only = [n for n in state if n not in self.joints and n not in self.drop and n not in body]
-        if state_only:
-            raise JointMapError(
-                f"{self.source}: observation.state entries {state_only} are not in action; the policy's "
-                "state and action hold the same entries: list them under 'drop'"
-            )
         return replace(self, state_names=tuple(state), action_names=tuple(action), _columns={})
+
+    def key_joints(self, key: str) -> dict[str, MappedJoint]:
+        """`key`'s entries ("observation.state" or "action") that hold the hand's joints."""
+        return {**self.joints, **(self.state_joints if key == OBS_STATE else self.action_joints)}
 
     def check_robot_type(self, robot_type: str | None) -> None:
         """Refuses a map for another hand than the one the dataset's `robot_type` names (`inspire`, or a word
@@ -204,7 +241,7 @@ class JointMap:
         """Refuses a scale that squeezes a joint into less than `SPAN_FRACTION` of its range (`lower`,
         `upper`: the hand's limits in spec order) while its entry as recorded spans more, within those
         limits: a degrees scale on entries already in radians, which the limit check lets through."""
-        names, by_joint = self.names(key), {j.joint: (e, j) for e, j in self.joints.items()}
+        names, by_joint = self.names(key), {j.joint: (e, j) for e, j in self.key_joints(key).items()}
         x = x.detach().to("cpu", torch.float64).reshape(-1, x.shape[-1])
         if not len(x):
             return
@@ -223,10 +260,11 @@ class JointMap:
                     "already (radians, metres); use scale 1, or invert the scale if it is the wrong way round"
                 )
 
-    @property
-    def body_names(self) -> list[str]:
-        """Entries besides the hand's joints, in the action's order (the policy models them as they are)."""
-        return [n for n in self.action_names if n not in self.joints]
+    def body_names(self, key: str) -> list[str]:
+        """`key`'s entries besides the hand's joints (and the dropped ones), in its order: the policy models
+        them as they are."""
+        joints = self.key_joints(key)
+        return [n for n in self.names(key) if n not in joints and n not in self.drop]
 
     @property
     def spec(self) -> HandSpec:
@@ -238,10 +276,10 @@ class JointMap:
             if not self.action_names:
                 raise JointMapError(f"{self.source}: not bound to a robot's entries (JointMap.bind)")
             names = self.names(key)
-            by_joint = {j.joint: (e, j) for e, j in self.joints.items()}
+            by_joint = {j.joint: (e, j) for e, j in self.key_joints(key).items()}
             order = [by_joint[j] for j in self.spec.actuated_joints]
             self._columns[key] = (
-                [names.index(n) for n in self.body_names],
+                [names.index(n) for n in self.body_names(key)],
                 [names.index(e) for e, _ in order],
                 torch.tensor([j.scale for _, j in order], dtype=torch.float64),
                 torch.tensor([j.offset for _, j in order], dtype=torch.float64),
@@ -250,7 +288,7 @@ class JointMap:
 
     def names(self, key: str) -> list[str]:
         """The robot's entries of `key` ("observation.state" or "action")."""
-        return list(self.state_names if key == "observation.state" else self.action_names)
+        return list(self.state_names if key == OBS_STATE else self.action_names)
 
     def split(self, x: torch.Tensor, key: str) -> tuple[torch.Tensor, torch.Tensor]:
         """(..., robot entries) of `key` ("observation.state" or "action") -> (body entries, the hand's joints
@@ -268,7 +306,7 @@ class JointMap:
     def join(self, body: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
         """(body entries, joints in spec order and units) -> (..., action entries) in the robot's order and
         units: the inverse of `split` on actions."""
-        columns_body, columns, scale, offset = self._indices("action")
+        columns_body, columns, scale, offset = self._indices(ACTION)
         out = body.new_empty((*body.shape[:-1], len(self.action_names)))
         out[..., columns_body] = body
         out[..., columns] = ((q - offset.to(q.device, q.dtype)) / scale.to(q.device, q.dtype)).to(out.dtype)

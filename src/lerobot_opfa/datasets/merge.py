@@ -72,7 +72,9 @@ def _open(root: Path, hands: list[str] | None, joint_maps: list[JointMap], bound
             f"{root} is a latent dataset (`policy latent-dataset`); merge the datasets it came from"
         )
     names = set(feature_names(meta.features, OBS_STATE))
-    fitting = [bound] if bound is not None else [m for m in joint_maps if set(m.joints) <= names]
+    fitting = (
+        [bound] if bound is not None else [m for m in joint_maps if set(m.key_joints(OBS_STATE)) <= names]
+    )
     if len(fitting) > 1:
         raise ValueError(
             f"{root}: several joint maps fit its entries ({', '.join(m.source for m in fitting)}); bind one "
@@ -82,6 +84,11 @@ def _open(root: Path, hands: list[str] | None, joint_maps: list[JointMap], bound
     layout = read_layout(meta.features, meta.robot_type, root, hands, joint_map)
     if layout.kind != "native":
         raise ValueError(f"{root} is already a merged dataset; merge the per-hand datasets it came from")
+    if layout.action_body_names is not None:
+        raise ValueError(
+            f"{root}: its action's body entries {layout.action_body_names} are not its state's "
+            f"{layout.wrist_names}; a merge holds one body for both: train on it alone (--policy.joint_map)"
+        )
     return _Input(root, meta, layout)
 
 
@@ -268,7 +275,7 @@ def _check_limits(source: _Input, galr) -> None:
         body, q = joint_map.split(torch.tensor(values, dtype=torch.float64), key)
         bad = ~body.isfinite()
         if bad.any():
-            entry = joint_map.body_names[int(bad.any(0).nonzero()[0])]
+            entry = joint_map.body_names(key)[int(bad.any(0).nonzero()[0])]
             raise ValueError(
                 f"{source.root}: {key} is not finite (NaN or inf) in {int(bad.any(1).sum())} of {len(body)} "
                 f"frames, first in entry '{entry}'"

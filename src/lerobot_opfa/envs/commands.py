@@ -25,6 +25,11 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     demos.add_argument("--pointcloud-source", choices=["depth", "geometry"], default="depth")
     demos.add_argument("--depth-cameras", default="front", help="comma-separated: front, left, right")
     demos.add_argument("--overwrite", action="store_true", help="replace an existing --output-dir")
+    demos.add_argument(
+        "--control", choices=["joints", "ee_delta"], default="joints",
+        help="joints: absolute wrist pose and hand joints; ee_delta (a gripper): tool steps and a 0..1 grasp "
+        "command, state with wrist velocities and a -1..1 gripper reading",
+    )  # fmt: skip
     demos.set_defaults(func=_demos)
 
     show = sim.add_parser(
@@ -51,7 +56,7 @@ def _demos(args: argparse.Namespace) -> int:
     check_writable(args.output_dir, "--output-dir", beside=True)  # the dataset is written beside it first
     meta = record_demos(
         args.task, args.hand, args.episodes, args.output_dir, args.regions, args.seed,
-        args.repo_id, args.n_points, args.pointcloud_source, args.depth_cameras, args.overwrite,
+        args.repo_id, args.n_points, args.pointcloud_source, args.depth_cameras, args.overwrite, args.control,
     )  # fmt: skip
     print(
         f"wrote {args.output_dir}: {meta.total_episodes} episodes, {meta.total_frames} frames of "

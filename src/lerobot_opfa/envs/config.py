@@ -15,6 +15,7 @@ from lerobot.envs.configs import EnvConfig
 from lerobot.processor import ObservationProcessorStep, PolicyProcessorPipeline
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGES, OBS_STATE
 
+from lerobot_opfa.envs.control import CONTROLS, EE_ACTION_NAMES, EE_STATE_NAMES
 from lerobot_opfa.envs.env import OBS_TYPES, POINTCLOUD_SOURCES, check_choice, parse_cameras
 from lerobot_opfa.envs.regions import parse_regions
 from lerobot_opfa.envs.scene import WRIST_JOINTS
@@ -69,6 +70,10 @@ class OpfaEnvConfig(EnvConfig):
     camera_height: int = 96
     fps: int = 20
     episode_length: int | None = None  # steps; None: the task's default
+    control: str = "joints"
+    """`joints` (absolute wrist pose and hand joints) or `ee_delta` (a gripper: tool steps and a grasp
+    command; `envs.control`). Under `ee_delta` the env is a robot of its own entries, read through the
+    policy's joint map."""
     policy_action_width: int | None = None
     """The action width of a policy whose postprocessor gives this env its joints, when it differs (a stock
     policy in GaLR space: body + z). LeRobot's lerobot-eval builds even a pretrained policy's action
@@ -91,13 +96,24 @@ class OpfaEnvConfig(EnvConfig):
             parse_cameras(self.depth_cameras)
         with flag("env.rgb_cameras"):
             parse_cameras(self.rgb_cameras)
+        with flag("env.control"):
+            check_choice("control", self.control, CONTROLS)
         with flag("env.hand"):
-            dim = len(WRIST_JOINTS) + len(load_spec(self.hand).joints)
+            spec = load_spec(self.hand)
+            if self.control == "ee_delta" and len(spec.joints) != 1:
+                raise ValueError(
+                    f"control ee_delta drives a gripper (one actuated joint); hand '{spec.name}' has "
+                    f"{len(spec.joints)}"
+                )
+        if self.control == "ee_delta":
+            state, action = len(EE_STATE_NAMES), len(EE_ACTION_NAMES)
+        else:
+            state = action = len(WRIST_JOINTS) + len(spec.joints)
         if self.policy_action_width is not None and self.policy_action_width < 1:
             raise ValueError(f"--env.policy_action_width: a positive width, not {self.policy_action_width}")
-        action = self.policy_action_width or dim
+        action = self.policy_action_width or action
         self.features = {ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(action,))}
-        self.features["agent_pos"] = PolicyFeature(type=FeatureType.STATE, shape=(dim,))
+        self.features["agent_pos"] = PolicyFeature(type=FeatureType.STATE, shape=(state,))
         self.features_map = {ACTION: ACTION, "agent_pos": OBS_STATE}
         if "pointcloud" in self.obs_type:
             self.features["pointcloud"] = PolicyFeature(type=FeatureType.STATE, shape=(3 * self.n_points,))
@@ -115,11 +131,10 @@ class OpfaEnvConfig(EnvConfig):
 
     def get_env_processors(self) -> tuple[PolicyProcessorPipeline, PolicyProcessorPipeline]:
         """Tells the policy which hand the observations come from, so a cross-embodiment policy picks the
-        right embodiment even when two of its hands have the same joint count."""
-        return (
-            PolicyProcessorPipeline(steps=[HandNameStep(load_spec(self.hand).name)]),
-            PolicyProcessorPipeline(steps=[]),
-        )
+        right embodiment even when two of its hands have the same joint count. Under `ee_delta` the env
+        is a robot like any other: its frames go through the joint map the policy was trained with."""
+        steps = [] if self.control == "ee_delta" else [HandNameStep(load_spec(self.hand).name)]
+        return PolicyProcessorPipeline(steps=steps), PolicyProcessorPipeline(steps=[])
 
     @property
     def package_name(self) -> str:
@@ -145,6 +160,7 @@ class OpfaEnvConfig(EnvConfig):
             "render_width": self.render_width,
             "render_height": self.render_height,
             "max_episode_steps": self.episode_length or TASKS[self.task].episode_steps,
+            "control": self.control,
         }
 
 

@@ -33,11 +33,12 @@ META_FILE = "opfa_demos.json"  # in the dataset's meta/: task, hand, regions and
 
 
 def dataset_features(env: OpfaSimEnv) -> dict:
-    """LeRobot features of a demo dataset: state and action named after the wrist and the hand's joints."""
-    names = env.state_names
+    """LeRobot features of a demo dataset: state and action named after the wrist and the hand's joints (or
+    the entries of the env's `ee_delta` control)."""
+    state, action = env.state_names, env.action_names
     return {
-        OBS_STATE: {"dtype": "float32", "shape": (len(names),), "names": names},
-        ACTION: {"dtype": "float32", "shape": (len(names),), "names": names},
+        OBS_STATE: {"dtype": "float32", "shape": (len(state),), "names": state},
+        ACTION: {"dtype": "float32", "shape": (len(action),), "names": action},
         OBS_POINTCLOUD: {"dtype": "float32", "shape": (3 * env.n_points,), "names": None},
         OBS_ENV_STATE: {"dtype": "float32", "shape": (ENV_STATE_DIM,), "names": None},
     }
@@ -55,7 +56,7 @@ def expert_episode(
     for step in range(steps + hold):
         if step == steps and not success:
             break
-        action = expert.act()
+        action = env.command(expert.act())
         frames.append(
             {
                 OBS_STATE: obs["agent_pos"].astype(np.float32),
@@ -86,6 +87,7 @@ def record_demos(
     pointcloud_source: str = "depth",
     depth_cameras: str = "front",
     overwrite: bool = False,
+    control: str = "joints",
 ) -> LeRobotDatasetMetadata:
     """Record `episodes` successful expert episodes, cycling through the regions, into `output_dir`, which
     appears whole or not at all (and only with `overwrite` replaces an existing folder). No successful
@@ -99,6 +101,7 @@ def record_demos(
         pointcloud_source=pointcloud_source,
         n_points=n_points,
         depth_cameras=depth_cameras,
+        control=control,
     )
     try:
         create = dict(

@@ -8,6 +8,7 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
+from lerobot_opfa.envs.control import CONTROLS, EE_ACTION_NAMES, EE_STATE_NAMES, EndEffectorDeltas
 from lerobot_opfa.envs.observation import ColourCameras, DepthPointCloud, GeometryPointCloud
 from lerobot_opfa.envs.regions import REGIONS, parse_regions
 from lerobot_opfa.envs.scene import (
@@ -52,6 +53,7 @@ class OpfaSimEnv(gym.Env):
     world-frame xyz, flattened so LeRobot datasets built from it can be merged; `environment_state` is the
     task's object state (`tasks.ENV_STATE_DIM`); `pixels` (obs types with `rgb`) holds each of
     `rgb_cameras` as `<name>_rgb`, (camera_height, camera_width, 3) uint8, as the rig records them.
+    With `control="ee_delta"` (a gripper), action and `agent_pos` hold other entries (`envs.control`).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
@@ -72,9 +74,12 @@ class OpfaSimEnv(gym.Env):
         render_mode: str = "rgb_array",
         render_width: int = 320,
         render_height: int = 240,
+        control: str = "joints",
     ) -> None:
         self.task = make_task(task)
         self.hand_model = load_hand(hand)
+        self.control = check_choice("control", control, CONTROLS)
+        self.ee = EndEffectorDeltas(self.hand_model) if control == "ee_delta" else None
         self.regions = parse_regions(regions)
         self.obs_type = check_choice("obs_type", obs_type, OBS_TYPES)
         self.pointcloud_source = check_choice("pointcloud source", pointcloud_source, POINTCLOUD_SOURCES)
@@ -92,6 +97,7 @@ class OpfaSimEnv(gym.Env):
         self.model = self.scene.model
         self.data = mujoco.MjData(self.model)
         self.n_substeps = max(1, round(1.0 / (fps * self.model.opt.timestep)))
+        self.wrist_qvel = np.array([self.model.jnt_dofadr[self.model.joint(j).id] for j in WRIST_JOINTS])
         self.ctrl_index = np.array(
             [self.model.actuator(f"act_{j}").id for j in WRIST_JOINTS]
             + [self.model.actuator(f"hand/act_{j}").id for j in self.hand_model.joint_names]
@@ -103,8 +109,10 @@ class OpfaSimEnv(gym.Env):
 
         low = np.concatenate([WRIST_RANGE[:, 0], self.hand_model.lower.double().cpu().numpy()])
         high = np.concatenate([WRIST_RANGE[:, 1], self.hand_model.upper.double().cpu().numpy()])
-        self.action_space = gym.spaces.Box(low.astype(np.float32), high.astype(np.float32), dtype=np.float32)
-        spaces = {"agent_pos": gym.spaces.Box(-np.inf, np.inf, (len(low),), np.float64)}
+        self.target_space = gym.spaces.Box(low.astype(np.float32), high.astype(np.float32), dtype=np.float32)
+        """The wrist's and the hand's targets (what `joints` control takes)."""
+        self.action_space = self.target_space if self.ee is None else self.ee.action_space
+        spaces = {"agent_pos": gym.spaces.Box(-np.inf, np.inf, (len(self.state_names),), np.float64)}
         if "pointcloud" in self.obs_type:
             spaces["pointcloud"] = gym.spaces.Box(-np.inf, np.inf, (n_points * 3,), np.float32)
         if "state" in self.obs_type:
@@ -129,7 +137,18 @@ class OpfaSimEnv(gym.Env):
 
     @property
     def state_names(self) -> list[str]:
+        if self.ee is not None:
+            return list(EE_STATE_NAMES)
         return list(WRIST_JOINTS) + list(self.hand_model.joint_names)
+
+    @property
+    def action_names(self) -> list[str]:
+        return self.state_names if self.ee is None else list(EE_ACTION_NAMES)
+
+    def command(self, targets: np.ndarray) -> np.ndarray:
+        """The action of this env's control that takes the wrist and hand to `targets` (what the scripted
+        experts give)."""
+        return targets if self.ee is None else self.ee.command(targets)
 
     def _point_cloud(self) -> np.ndarray:
         if self._cloud is None:
@@ -141,11 +160,11 @@ class OpfaSimEnv(gym.Env):
         return self._cloud(self.data, self.np_random).reshape(-1)
 
     def observation(self) -> dict[str, np.ndarray]:
-        obs = {
-            "agent_pos": np.concatenate(
-                [self.data.qpos[self.scene.wrist_qpos], self.data.qpos[self.scene.hand_qpos]]
-            )
-        }
+        wrist, hand = self.data.qpos[self.scene.wrist_qpos], self.data.qpos[self.scene.hand_qpos]
+        if self.ee is None:
+            obs = {"agent_pos": np.concatenate([wrist, hand])}
+        else:
+            obs = {"agent_pos": self.ee.state(wrist, self.data.qvel[self.wrist_qvel], hand[0])}
         if "pointcloud" in self.obs_type:
             obs["pointcloud"] = self._point_cloud()
         if "state" in self.obs_type:
@@ -170,10 +189,14 @@ class OpfaSimEnv(gym.Env):
         self.data.ctrl[self.ctrl_index] = np.concatenate([HOME, self.hand_open])
         mujoco.mj_forward(self.model, self.data)
         mujoco.mj_step(self.model, self.data, SETTLE_STEPS)
+        if self.ee is not None:
+            self.ee.reset()
         return self.observation(), {"is_success": False, "region": self.region}
 
     def step(self, action: np.ndarray):
         action = np.clip(np.asarray(action, dtype=np.float64), self.action_space.low, self.action_space.high)
+        if self.ee is not None:
+            action = np.clip(self.ee.targets(action), self.target_space.low, self.target_space.high)
         self.data.ctrl[self.ctrl_index] = action
         mujoco.mj_step(self.model, self.data, self.n_substeps)
         if self.data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number:

@@ -73,7 +73,10 @@ class OpfaConfig(PreTrainedConfig):
     embodiment_joints: list[list[str]] = field(default_factory=list)
     """Per embodiment, the universal joints its actuated joints map to (a checkpoint needs no hand model)."""
     wrist_names: list[str] = field(default_factory=list)
-    """Leading state/action entries that are not hand joints (the wrist pose)."""
+    """Leading state entries that are not hand joints (the wrist pose, an arm's joints): the body."""
+    action_body_names: list[str] | None = None
+    """The action's body entries where they are not the state's (end-effector deltas against arm joints);
+    None: the same as `wrist_names`."""
     latent_dim: int | None = None
 
     visual_inputs: str = "pointcloud"
@@ -176,9 +179,18 @@ class OpfaConfig(PreTrainedConfig):
         return ACTION_SPACES[self.action_space]
 
     @property
-    def policy_width(self) -> int:
-        """Width of the policy's state and action vectors: the wrist's entries, then the space's."""
+    def action_body(self) -> list[str]:
+        return self.wrist_names if self.action_body_names is None else self.action_body_names
+
+    @property
+    def state_width(self) -> int:
+        """Width of the policy's state: the body's entries, then the space's."""
         return len(self.wrist_names) + self.space.hand_width(self.latent_dim, self.embodiment_joints)
+
+    @property
+    def action_width(self) -> int:
+        """Width of the policy's action: the action's body entries, then the space's."""
+        return len(self.action_body) + self.space.hand_width(self.latent_dim, self.embodiment_joints)
 
     @property
     def drop_n_last_frames(self) -> int:

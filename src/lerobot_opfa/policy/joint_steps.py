@@ -110,7 +110,10 @@ class _HandSpace:
     embodiment_joints: list[list[str]] = field(default_factory=list)
     """Per embodiment, its universal joints (the config's; read from the specs for a step saved before)."""
     wrist_dim: int = 6
-    """Body entries of a policy state or action (a wrist pose, an arm's joints) before the hand's part."""
+    """Body entries of a policy state (a wrist pose, an arm's joints) before the hand's part."""
+    action_wrist_dim: int | None = None
+    """Body entries of a policy action where they are not the state's (end-effector deltas); None: the
+    same."""
     galr_config: dict | None = None
     joint_maps: list[dict] = field(default_factory=list)
     """Per embodiment, how its robot's vectors hold the body entries and the hand's joints (a bound
@@ -142,8 +145,13 @@ class _HandSpace:
 
     def _spec_order_map(self, ref: str, joint_names: list[str] | None = None) -> JointMap:
         spec = load_spec(ref)
-        names = [f"body_{i}" for i in range(self.wrist_dim)] + list(joint_names or spec.actuated_joints)
-        return JointMap.named_after(spec, names, names)
+        joints = list(joint_names or spec.actuated_joints)
+        state, action = ([f"body_{i}" for i in range(self.body_dim(k))] + joints for k in (OBS_STATE, ACTION))
+        return JointMap.named_after(spec, state, action)
+
+    def body_dim(self, key: str) -> int:
+        """Body entries of the policy's `key` ("observation.state" or "action")."""
+        return self.wrist_dim if key == OBS_STATE or self.action_wrist_dim is None else self.action_wrist_dim
 
     def robot_map(self, index: int, simulator: bool) -> JointMap:
         """Embodiment `index`'s joint map for frames of the trained robot, or of the simulator (the body
@@ -162,7 +170,7 @@ class _HandSpace:
                 f"{key} has {x.shape[-1]} entries; the '{self.embodiments[index]}' robot this policy was "
                 f"trained on has {len(names)}: "
                 + (
-                    f"{self.wrist_dim} body entries, then {len(names) - self.wrist_dim} joints"
+                    f"{self.body_dim(key)} body entries, then {len(names) - self.body_dim(key)} joints"
                     if simulator
                     else ", ".join(names)
                 )
@@ -176,10 +184,9 @@ class _HandSpace:
     def latent_dim(self) -> int | None:
         return None if self.galr is None else self.galr.config.latent_dim
 
-    @cached_property
-    def policy_width(self) -> int:
-        """Width of a policy-space state or action: the wrist's entries, then the space's."""
-        return self.wrist_dim + self.space.hand_width(self.latent_dim, self.embodiment_joints)
+    def policy_width(self, key: str) -> int:
+        """Width of the policy's `key`: its body entries, then the space's."""
+        return self.body_dim(key) + self.space.hand_width(self.latent_dim, self.embodiment_joints)
 
     @cached_property
     def hand_mask(self) -> torch.Tensor:
@@ -219,6 +226,7 @@ class _HandSpace:
             "hand_refs": list(self.hand_refs),
             "embodiment_joints": [list(joints) for joints in self.embodiment_joints],
             "wrist_dim": self.wrist_dim,
+            **({} if self.action_wrist_dim is None else {"action_wrist_dim": self.action_wrist_dim}),
             "galr_config": self.galr_config,
             "joint_maps": [dict(m) for m in self.joint_maps],
         }
@@ -368,9 +376,9 @@ class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
         self.load_galr_state(self.load_user_hands(state), "encoder.")
 
     def transform_features(self, features):
-        width = self.policy_width
         for kind, key in ((PipelineFeatureType.OBSERVATION, OBS_STATE), (PipelineFeatureType.ACTION, ACTION)):
             if key in features.get(kind, {}):
+                width = self.policy_width(key)
                 features[kind][key] = PolicyFeature(type=features[kind][key].type, shape=(width,))
         return features
 
@@ -402,7 +410,8 @@ class OpfaDecodeJointsStep(_HandSpace, AbsoluteActionsProcessorStep):
         action = new[TransitionKey.ACTION]
         frames = paired_frames(self, len(action), self.embodiments)
         index = self.single_index(frames.ids)
-        wrist, rest = action[..., : self.wrist_dim], action[..., self.wrist_dim :]
+        body = self.body_dim(ACTION)
+        wrist, rest = action[..., :body], action[..., body:]
         q = self.space.to_joints(self, index, rest)
         new[TransitionKey.ACTION] = self.robot_map(index, frames.simulator).join(wrist, q)
         return new

@@ -35,7 +35,7 @@ def loss_weights(config: OpfaConfig) -> Tensor:
     wrist entries under `galr`, which then fits the joints and leaves the wrist at the demos' average
     motion (denoising error of the wrist 10x that of `raw` after the same training). For `per_embodiment`,
     a hand's share goes to the universal joints it has."""
-    n_wrist = len(config.wrist_names)
+    n_wrist = len(config.action_body)
     present = config.space.hand_mask(config.latent_dim, config.embodiment_joints)
     hand_share = 0.5 if n_wrist else 1.0
     wrist = torch.full((len(config.embodiments), n_wrist), (1 - hand_share) / max(n_wrist, 1))
@@ -58,7 +58,7 @@ class OpfaPolicy(PreTrainedPolicy):
             raise ValueError("an opfa policy is built from a dataset (dataset_meta) or a trained checkpoint")
         self.config = config
         hold_until_exit()  # a torchrun/accelerate rank of lerobot-train exits without hanging
-        width = config.policy_width
+        width = config.action_width
         self.image_keys = tuple(config.image_keys)
         clouds = (OBS_POINTCLOUD,) if config.uses_pointcloud else ()
         self.observation_keys = (OBS_STATE, *clouds, *self.image_keys)
@@ -85,14 +85,16 @@ class OpfaPolicy(PreTrainedPolicy):
         # ends up is what the picture shows. With the hand's joints too (the same grasp in every episode),
         # Inspire's 6 joints diluted it: its goal loss sat at the mean's for most of training and RGB lift
         # succeeded 29/50, against 46/50 with the wrist alone (docs/results.md).
-        goal_width = len(config.wrist_names) or width
+        goal_width = len(config.action_body) or width
         self.image_goal = nn.Linear(image_dim, goal_width) if config.learns_image_goal else None
         """An episode's first frame's image features -> its last wrist pose (`image_goal`; training only)."""
         # DP3's state encoder. Fed raw into the U-Net's conditioning, the state would pass its Mish first,
         # which flattens inputs below -0.6 (normalised) to about -0.3: the lower part of every entry's range
         # (the wrist's last centimetres above a button) would barely reach the network.
         hidden, out = config.state_mlp_dims
-        self.state_encoder = nn.Sequential(nn.Linear(width, hidden), nn.ReLU(), nn.Linear(hidden, out))
+        self.state_encoder = nn.Sequential(
+            nn.Linear(config.state_width, hidden), nn.ReLU(), nn.Linear(hidden, out)
+        )
         self.unet = ConditionalUnet1d(
             action_dim=width,
             cond_dim=config.n_obs_steps * (visual_dim + config.state_mlp_dims[-1]),
@@ -247,10 +249,10 @@ class OpfaPolicy(PreTrainedPolicy):
         another part of the view at another scale without a word, and resizing cannot promise the same
         view."""
         state = batch.get(OBS_STATE)
-        if OBS_EMBODIMENT not in batch or (state is not None and state.shape[-1] != self.config.policy_width):
+        if OBS_EMBODIMENT not in batch or (state is not None and state.shape[-1] != self.config.state_width):
             raise ValueError(
                 "this observation was not made by this policy's preprocessor (it has no "
-                f"{OBS_EMBODIMENT}, or its state is not {self.config.policy_width} wide): pass it through "
+                f"{OBS_EMBODIMENT}, or its state is not {self.config.state_width} wide): pass it through "
                 "the preprocessor of make_pre_post_processors(policy.config, pretrained_path=...) first"
             )
         missing = [k for k in self.observation_keys if k not in batch]

@@ -129,6 +129,7 @@ def resolve_config(config: OpfaConfig, dataset_meta: Any) -> tuple[DatasetLayout
         config.latent_dim = galr.config.latent_dim
     config.space.check_embodiments(layout.embodiments)
     config.embodiments, config.wrist_names = list(layout.embodiments), list(layout.wrist_names)
+    config.action_body_names = None if layout.action_body_names is None else list(layout.action_body_names)
     config.embodiment_joints = [load_spec(ref).universal_names for ref in layout.hand_refs]
     return layout, galr
 
@@ -138,17 +139,37 @@ def _policy_space_tables(
 ) -> dict[str, torch.Tensor]:
     """The normalisation tables of the policy's state and action: from the statistics `dataset merge`
     wrote when the policy's entries are columns of the merged dataset, else from the frames."""
-    wrist = len(config.wrist_names)
-    pooled = torch.zeros(config.policy_width, dtype=torch.bool)
-    pooled[:wrist] = config.wrist_normalization == "shared"
-    pooled[wrist:] = config.space.pools_hand_statistics
+    pooled = {key: _pooled(config, body) for key, body in _bodies(config).items()}
     fitted = _merge_statistics(config, layout, encoder, root)
-    state, action, floor = fitted or _frame_statistics(config, layout, encoder, root, pooled)
+    state, action, floor = fitted or _frame_statistics(config, layout, encoder, root, pooled[OBS_STATE])
+    floors = {OBS_STATE: floor, ACTION: _action_floor(config, floor)}
     tables = {}
     for key, stats in ((OBS_STATE, state), (ACTION, action)):
-        affine = affine_tables(stats, config.normalization, pooled, floor)
+        affine = affine_tables(stats, config.normalization, pooled[key], floors[key])
         tables |= {f"{key}.{name}": table for name, table in affine.items()}
     return tables
+
+
+def _bodies(config: OpfaConfig) -> dict[str, int]:
+    """Body entries of the policy's state and of its action."""
+    return {OBS_STATE: len(config.wrist_names), ACTION: len(config.action_body)}
+
+
+def _pooled(config: OpfaConfig, body: int) -> torch.Tensor:
+    """Which entries of a policy vector with `body` body entries take statistics over all hands."""
+    hand = config.space.hand_width(config.latent_dim, config.embodiment_joints)
+    pooled = torch.zeros(body + hand, dtype=torch.bool)
+    pooled[:body] = config.wrist_normalization == "shared"
+    pooled[body:] = config.space.pools_hand_statistics
+    return pooled
+
+
+def _action_floor(config: OpfaConfig, state_floor: torch.Tensor) -> torch.Tensor:
+    """The action's noise floor: the state's hand part (the same joints through the same encoder), after
+    the physical noise of the action's own body entries."""
+    bodies = _bodies(config)
+    body = raw_noise(bodies[ACTION], []).expand(len(state_floor), -1)
+    return torch.cat([body, state_floor[:, bodies[OBS_STATE] :]], dim=1)
 
 
 Fitted = tuple[dict[str, torch.Tensor], dict[str, torch.Tensor], torch.Tensor]
@@ -299,6 +320,7 @@ def policy_space_steps(
         hand_refs=list(layout.hand_refs),
         embodiment_joints=[list(joints) for joints in config.embodiment_joints],
         wrist_dim=len(config.wrist_names),
+        action_wrist_dim=None if config.action_body_names is None else len(config.action_body_names),
         galr_config=dataclasses.asdict(galr.config) if galr is not None else None,
         joint_maps=[m.to_dict() for m in layout.joint_maps],
         galr=galr,

@@ -77,8 +77,11 @@ def latent_dataset(
     layout, galr = resolve_config(config, meta)
     steps = policy_space_steps(config, meta, layout, galr)
     state, action = _policy_space_frames(steps, source, layout.kind == "merged")
-    names = [*config.wrist_names, *config.space.hand_names(steps.encode)]
-    info = {"dtype": "float32", "shape": (len(names),), "names": names}
+    hand = config.space.hand_names(steps.encode)
+    infos = {
+        key: {"dtype": "float32", "shape": (len(body) + len(hand),), "names": [*body, *hand]}
+        for key, body in ((OBS_STATE, config.wrist_names), (ACTION, config.action_body))
+    }
     output = Path(output)
     with (
         atomic_directory(output, overwrite) as partial,
@@ -90,8 +93,8 @@ def latent_dataset(
             repo_id=f"local/{output.name}",
         )  # fmt: skip
         written = modify_features(
-            without, add_features={OBS_STATE: (state, info), ACTION: (action, info)}, output_dir=partial,
-            repo_id=f"local/{output.name}",
+            without, add_features={OBS_STATE: (state, infos[OBS_STATE]), ACTION: (action, infos[ACTION])},
+            output_dir=partial, repo_id=f"local/{output.name}",
         )  # fmt: skip
         recompute_stats(written)
         written.meta.info.robot_type = LATENT_ROBOT_TYPE  # not joints: `dataset merge` refuses it

@@ -1,0 +1,63 @@
+"""How a policy commands the simulator's wrist and hand.
+
+`joints` (the default): action and state share one layout, the wrist's absolute pose and the hand's joints.
+`ee_delta`: what a gripper on an arm with a Cartesian controller records. The action is a step of the
+tool (`dx, dy, dz` in m, `dyaw` in rad) and a `grasp` command in 0 (open) .. 1 (closed). The state is the
+wrist's joints and their velocities, and a `gripper` reading in -1 (open) .. 1 (closed). State and
+action then hold different entries: the robot a joint map with `state_joints` / `action_joints` reads.
+"""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+
+from lerobot_opfa.envs.scene import HOME, WRIST_JOINTS, WRIST_RANGE
+from lerobot_opfa.hands.model import HandModel
+
+CONTROLS = ("joints", "ee_delta")
+MAX_STEP = 0.05
+"""m per step of `dx, dy, dz` (the experts move under 1 cm a step)."""
+MAX_TURN = 0.3
+"""rad per step of `dyaw`."""
+EE_ACTION_NAMES = ("dx", "dy", "dz", "dyaw", "grasp")
+EE_STATE_NAMES = (*WRIST_JOINTS, *(f"{joint}.vel" for joint in WRIST_JOINTS), "gripper")
+
+
+class EndEffectorDeltas:
+    """`ee_delta` control of a one-joint gripper: turns a step and a grasp command into the wrist's and
+    the gripper's targets, keeping the wrist's target between steps, and reads the state it reports."""
+
+    def __init__(self, hand: HandModel) -> None:
+        if hand.dof != 1:
+            raise ValueError(
+                f"ee_delta control drives a gripper (one actuated joint); hand '{hand.name}' has {hand.dof}: "
+                "use control 'joints'"
+            )
+        self.open = float(hand.pose("open")[0])
+        grasp = float(hand.pose("grasp")[0])
+        self.closed = float(hand.upper[0] if grasp > self.open else hand.lower[0])
+        self.action_space = gym.spaces.Box(
+            np.array([-MAX_STEP] * 3 + [-MAX_TURN, 0.0], np.float32),
+            np.array([MAX_STEP] * 3 + [MAX_TURN, 1.0], np.float32),
+            dtype=np.float32,
+        )
+        self.target = HOME.copy()
+
+    def reset(self) -> None:
+        self.target = HOME.copy()
+
+    def targets(self, action: np.ndarray) -> np.ndarray:
+        """The wrist pose and gripper joint targets of an `ee_delta` action (already within its space)."""
+        self.target[:4] = np.clip(self.target[:4] + action[:4], WRIST_RANGE[:4, 0], WRIST_RANGE[:4, 1])
+        return np.array([*self.target, self.open + action[4] * (self.closed - self.open)])
+
+    def command(self, targets: np.ndarray) -> np.ndarray:
+        """The `ee_delta` action that takes the wrist and gripper to `targets` (absolute, as the scripted
+        experts give them; pitch and roll stay at home)."""
+        grasp = (targets[len(WRIST_JOINTS)] - self.open) / (self.closed - self.open)
+        return np.array([*(targets[:4] - self.target[:4]), np.clip(grasp, 0.0, 1.0)])
+
+    def state(self, wrist: np.ndarray, wrist_velocity: np.ndarray, gripper: float) -> np.ndarray:
+        reading = 2.0 * (gripper - self.open) / (self.closed - self.open) - 1.0
+        return np.array([*wrist, *wrist_velocity, reading])
