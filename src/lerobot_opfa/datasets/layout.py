@@ -19,7 +19,7 @@ from lerobot.utils.constants import ACTION, OBS_STATE
 
 from lerobot_opfa.datasets.io import OPFA_META_FILE, embedded_record, read_json
 from lerobot_opfa.datasets.joint_map import JointMap, joint_of
-from lerobot_opfa.datasets.map_hint import closest_hands, map_to_write
+from lerobot_opfa.datasets.map_hint import closest_hands, hand_sides, map_to_write, recorded_ranges
 from lerobot_opfa.features import OBS_EMBODIMENT
 from lerobot_opfa.hands.registry import builtin_hands, hand_ref, load_spec
 from lerobot_opfa.hands.spec import HandSpec
@@ -71,10 +71,13 @@ def _hand_candidates(hands: list[str] | None) -> list[str]:
     return list(hands) if hands else list(builtin_hands())
 
 
-def identify_hand(names: list[str], robot_type: str | None, hands: list[str] | None = None) -> HandSpec:
+def identify_hand(
+    names: list[str], robot_type: str | None, hands: list[str] | None = None, root: Path | str | None = None
+) -> HandSpec:
     """The hand whose actuated joints a native state vector holds under their own names: `robot_type` when
     it names a hand, else the one candidate whose joints all appear. Otherwise the error names the closest
-    hand by joint structure and the joint map to write."""
+    hand by joint structure and names (per side for a two-armed robot) and the joint map to write, with
+    units from the ranges the dataset at `root` records."""
     specs = list({s.path: s for s in map(load_spec, _hand_candidates(hands))}.values())
     joints = {joint_of(n) for n in names} | set(names)
     named = [s for s in specs if s.name == robot_type]
@@ -90,18 +93,25 @@ def identify_hand(names: list[str], robot_type: str | None, hands: list[str] | N
             f"joint names {names} fit several hands ({', '.join(s.name for s in widest)}); set the dataset's "
             "robot_type to the hand's name"
         )
-    closest, *alternatives = named or closest_hands(names, specs)
+    ranges = recorded_ranges(root, names)
+    closest, maps = [], []
+    for side, entries in hand_sides(names).items():
+        hand, *alternatives = named or closest_hands(entries, specs, ranges)
+        missing = [j for j in hand.actuated_joints if j not in joints]
+        unknown = [n for n in entries if joint_of(n) not in hand.joints]
+        closest.append(
+            (f"{side} entries: " if side else "")
+            + ", ".join(repr(s.name) for s in [hand, *alternatives])
+            + f" ({len(hand.joints)} joints; missing {missing}, unknown {unknown})"
+        )
+        maps.append(map_to_write(entries, hand, alternatives, ranges, side))
     whose = f"hand '{robot_type}'" if named else "any registered hand"
-    missing = [j for j in closest.actuated_joints if j not in joints]
-    unknown = [n for n in names if joint_of(n) not in closest.joints]
-    hands = ", ".join(repr(s.name) for s in [closest, *alternatives])
     raise JointNameError(
         f"the state/action entries ({len(names)}: {', '.join(map(repr, names[:4]))}, ...) are not named "
-        f"after the joints of {whose}; closest by joint structure: {hands} "
-        f"({len(closest.joints)} joints; missing {missing}, unknown {unknown}). "
+        f"after the joints of {whose}; closest by joint structure and names: {'; '.join(closest)}. "
         "Write a joint map (docs/usage.md) and pass it "
         "(merge: --joint-maps FILE; training: --policy.joint_map=FILE); a start, to check line by line:\n"
-        + map_to_write(names, closest, alternatives)
+        + "\n\n".join(maps)
     )
 
 
@@ -197,7 +207,7 @@ def read_layout(
         fingerprint = record.get("galr_fingerprint")
         return DatasetLayout("merged", embodiments, refs, wrist, maps, len(rest), fingerprint)
     if joint_map is None:
-        spec = identify_hand(names, robot_type, candidates)
+        spec = identify_hand(names, robot_type, candidates, root)
         joint_map = JointMap.named_after(spec, names, actions)
     else:
         joint_map = joint_map.bind(names, actions)
