@@ -197,6 +197,23 @@ def test_split_and_join_are_inverse_and_apply_the_units(rigs):
     assert torch.allclose(joint_map.split(state, OBS_STATE)[1], q)
 
 
+def test_a_scale_that_leaves_a_joint_under_a_tenth_of_its_range_is_a_warning_naming_it(rigs, caplog):
+    """Values as recorded beyond the limits (0..1000) are not the refused case (entries already in the
+    spec's units), but a scale that then uses a twentieth of the range is named."""
+    meta = LeRobotDatasetMetadata("local/arm_inspire", root=rigs / "arm_inspire")
+    names = meta.features[ACTION]["names"]
+    raw = JointMap.load(rigs / "arm_inspire_map.yaml").to_dict()
+    raw["joints"]["hand.index"]["scale"] /= 20  # 0..1000 now moves index_mcp_flex over 0.07 rad of 1.47
+    joint_map = JointMap.from_dict(raw, "squeezed.yaml").bind(meta.features[OBS_STATE]["names"], names)
+    hand = load_hand("inspire")
+    frames = torch.tensor(read_columns(rigs / "arm_inspire", [ACTION])[ACTION])
+    with caplog.at_level("WARNING", logger="lerobot_opfa.datasets.joint_map"):
+        joint_map.check_spans(frames, ACTION, hand.lower, hand.upper)
+    warned = [r.getMessage() for r in caplog.records]
+    assert len(warned) == 1 and "entry 'hand.index'" in warned[0] and "'index_mcp_flex'" in warned[0]
+    assert "under a tenth" in warned[0]
+
+
 def _through_processors(pre, post, frames) -> tuple[torch.Tensor, torch.Tensor]:
     transition = batch_to_transition(batch_of(frames, list(range(0, len(frames), 5))))
     original = transition[TransitionKey.ACTION].clone()

@@ -29,6 +29,7 @@ second list of joints here, nothing elsewhere.
 from __future__ import annotations
 
 import difflib
+import logging
 import math
 import re
 from dataclasses import dataclass, field, replace
@@ -41,6 +42,8 @@ from lerobot_opfa.hands.model import LIMIT_TOLERANCE
 from lerobot_opfa.hands.registry import builtin_hands, hand_ref, load_spec
 from lerobot_opfa.hands.spec import HandSpec
 from lerobot_opfa.yaml_files import YamlFileError, read_yaml
+
+logger = logging.getLogger(__name__)
 
 SPAN_FRACTION = 0.1
 """A scaled joint whose frames use less than this fraction of its range, while its entries as recorded
@@ -240,7 +243,9 @@ class JointMap:
     def check_spans(self, x: torch.Tensor, key: str, lower: torch.Tensor, upper: torch.Tensor) -> None:
         """Refuses a scale that squeezes a joint into less than `SPAN_FRACTION` of its range (`lower`,
         `upper`: the hand's limits in spec order) while its entry as recorded spans more, within those
-        limits: a degrees scale on entries already in radians, which the limit check lets through."""
+        limits: a degrees scale on entries already in radians, which the limit check lets through. Any other
+        scaled joint that moves over less than `SPAN_FRACTION` of its range is a warning naming it: a scale
+        too small, or a joint the demos barely move."""
         names, by_joint = self.names(key), {j.joint: (e, j) for e, j in self.key_joints(key).items()}
         x = x.detach().to("cpu", torch.float64).reshape(-1, x.shape[-1])
         if not len(x):
@@ -259,6 +264,12 @@ class JointMap:
                     f"recorded it spans {recorded:.3g} within those limits: it is in the spec's units "
                     "already (radians, metres); use scale 1, or invert the scale if it is the wrong way round"
                 )
+            if mapped.scale != 1 and span < SPAN_FRACTION * width:
+                logger.warning(
+                    "%s: entry %r with scale %g moves joint '%s' over %.3g of its range %.3g in %s (under a "
+                    "tenth): check the scale, or that the demos move this joint",
+                    self.source, entry, mapped.scale, joint, span, width, key,
+                )  # fmt: skip
 
     def body_names(self, key: str) -> list[str]:
         """`key`'s entries besides the hand's joints (and the dropped ones), in its order: the policy models
