@@ -9,8 +9,8 @@ reading, read through a joint map with `state_joints` / `action_joints`) and `jo
 the jaw in both). Per control and action space (`galr`, `raw`): 20 expert demos (seed 11), `lerobot-opfa
 train` for 30 epochs at batch 32 (the learnability benchmark's settings), 50 `lerobot-eval` episodes
 (seed 1000). Every step is skipped when its output exists, so the run resumes where it stopped. Results:
-benchmarks/results/ee_delta.json, a list `runs` of {control, action_space, successes, episodes, epochs,
-train_minutes, commit}.
+benchmarks/results/ee_delta.{json,png}, the JSON a list `runs` of {control, action_space, successes,
+episodes, epochs, train_minutes, commit}.
 """
 
 from __future__ import annotations
@@ -91,6 +91,27 @@ def cell(out: Path, control: str, space: str, joint_map: Path) -> dict:
     }
 
 
+def plot(runs: list[dict], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5, 3.2))
+    for i, space in enumerate(("galr", "raw")):
+        cells = [r for r in runs if r["action_space"] == space]
+        rates = [100 * r["successes"] / r["episodes"] for r in cells]
+        bars = ax.bar([j + 0.38 * i for j in range(len(cells))], rates, 0.36, label=space)
+        ax.bar_label(bars, [f"{r['successes']}/{r['episodes']}" for r in cells], fontsize=8)
+    ax.set_xticks([0.19, 1.19], ["ee_delta\n(state 13, action 5)", "joints\n(state = action, 7)"])
+    ax.set_ylabel("success (%)")
+    ax.set_ylim(0, 110)
+    ax.set_title(f"{HAND}, {TASK}, {REGION}: {DEMOS} demos, {EPOCHS} epochs", fontsize=9)
+    ax.legend(loc="lower right", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("outputs/bench_ee_delta"))
@@ -101,6 +122,7 @@ def main() -> None:
     joint_map = write_map(out / "map.yaml")
     runs = [cell(out, c, s, joint_map) for c in ("ee_delta", "joints") for s in ("galr", "raw")]
     RESULTS.write_text(json.dumps({"runs": runs}, indent=2) + "\n")
+    plot(runs, RESULTS.with_suffix(".png"))
     for r in runs:
         print(f"{r['control']:9s} {r['action_space']:5s} {r['successes']}/{r['episodes']}")
 
