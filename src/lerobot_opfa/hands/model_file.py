@@ -6,6 +6,7 @@ treats a user's model exactly like a built-in one.
 
 from __future__ import annotations
 
+import copy
 import io
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
@@ -63,17 +64,25 @@ def _load_urdf(path: Path) -> ModelFile:
 
 def _urdf_for_mujoco(text: bytes, path: Path) -> tuple[str, dict[str, bytes]]:
     """MuJoCo reads URDF itself, but strips mesh directories, does not know `package://` and fuses fixed
-    links away. Give it every mesh as an STL asset and keep every link a body."""
+    links away. Give it every mesh as an STL asset and keep every link a body. A link with visual geometry
+    and no collision geometry (CAD exports write only visuals) collides with its visuals: MuJoCo keeps
+    URDF visuals out of contact, and a hand of visuals only went through the button it pressed."""
     root = ET.fromstring(text)
+    for link in root.iter("link"):
+        if link.find("collision") is None:
+            for visual in link.findall("visual"):
+                collision = ET.SubElement(link, "collision")
+                collision.extend(copy.deepcopy(c) for c in visual if c.tag in ("origin", "geometry"))
     assets: dict[str, bytes] = {}
-    for i, mesh in enumerate(root.iter("mesh")):
-        name = f"{i}_{Path(mesh.get('filename')).stem}.stl"  # MuJoCo's messages name the asset
-        buffer = io.BytesIO()
-        trimesh.load(resolve_urdf_mesh(mesh.get("filename"), path), force="mesh").export(
-            buffer, file_type="stl"
-        )
-        assets[name] = buffer.getvalue()
-        mesh.set("filename", name)
+    names: dict[str, str] = {}  # a file used twice (a visual and its collision copy) is converted once
+    for mesh in root.iter("mesh"):
+        filename = mesh.get("filename")
+        if filename not in names:
+            names[filename] = f"{len(names)}_{Path(filename).stem}.stl"  # MuJoCo's messages name the asset
+            buffer = io.BytesIO()
+            trimesh.load(resolve_urdf_mesh(filename, path), force="mesh").export(buffer, file_type="stl")
+            assets[names[filename]] = buffer.getvalue()
+        mesh.set("filename", names[filename])
     for old in root.findall("mujoco"):
         root.remove(old)
     extension = ET.SubElement(root, "mujoco")
