@@ -118,13 +118,24 @@ def record_demos(
     return LeRobotDatasetMetadata(repo_id or _repo_id(env), root=output_dir)
 
 
+def failure_reason(env: OpfaSimEnv, frames: list[dict]) -> str:
+    """Why a failed expert episode (its recorded frames) failed, in one line naming the phase."""
+    model, hand = env.model, env.scene.hand_geoms
+    if not (model.geom_contype[hand] | model.geom_conaffinity[hand]).any():
+        return (
+            "reach: the hand has no collision geometry and passes through objects; give its model collision "
+            "shapes (URDF <collision>, MJCF geoms with contype or conaffinity)"
+        )
+    return env.task.failure(np.stack([frame[OBS_ENV_STATE] for frame in frames]))
+
+
 def _repo_id(env: OpfaSimEnv) -> str:
     return f"local/opfa_{env.task.name}_{env.hand_model.name}"
 
 
 def _record(env: OpfaSimEnv, episodes: int, dataset, region_names: list[str], seed: int) -> None:
     task, root = env.task.name, dataset.root
-    records, attempts = [], 0
+    records, attempts, reason = [], 0, ""
     with tqdm(total=episodes, desc=f"demos {task}/{env.hand_model.name}") as bar:
         while len(records) < episodes and attempts < MAX_ATTEMPTS_PER_EPISODE * episodes:
             region = region_names[len(records) % len(region_names)]
@@ -132,6 +143,9 @@ def _record(env: OpfaSimEnv, episodes: int, dataset, region_names: list[str], se
             attempts += 1
             frames, success = expert_episode(env, episode_seed, region)
             if not success:
+                if frames:
+                    reason = failure_reason(env, frames)
+                    logger.warning("expert failed (seed %d, region %s): %s", episode_seed, region, reason)
                 continue
             for frame in frames:
                 dataset.add_frame(frame)
@@ -142,7 +156,8 @@ def _record(env: OpfaSimEnv, episodes: int, dataset, region_names: list[str], se
             bar.update(1)
     if not records:
         raise ValueError(
-            f"no expert episode of {task} with '{env.hand_model.name}' succeeded in {attempts} attempts; "
+            f"no expert episode of {task} with '{env.hand_model.name}' succeeded in {attempts} attempts"
+            f"{f' (the last: {reason})' if reason else ''}; "
             f"watch one with `lerobot-opfa sim show --task {task} --hand {env.hand_model.spec.path} --out "
             "scene.png --video expert.mp4` and check the spec's grasp pose"
         )

@@ -14,6 +14,9 @@ from lerobot_opfa.envs.scene import OBJECT_FRICTION, Scene
 ENV_STATE_DIM = 11
 """Length of every task's `env_state`: object position (3), object quaternion (4), target position (3),
 articulation (1)."""
+MOVED = 0.002  # m: an object or articulation that moved less than this was never reached
+RISEN = 0.01  # m: an object that rose this far off the table was held
+TIPPED = 45.0  # deg: an object whose axis leaned this far from upright was knocked over
 BOX, CAPSULE, CYLINDER = (
     mujoco.mjtGeom.mjGEOM_BOX,
     mujoco.mjtGeom.mjGEOM_CAPSULE,
@@ -66,6 +69,27 @@ class Task:
         """Whether the hand is in contact with the task's object now."""
         return _touching(scene, data, scene.model.body(self.object_body).id)
 
+    def failure(self, states: np.ndarray) -> str:
+        """Why an episode whose `env_state`s were `states` (steps, `ENV_STATE_DIM`) did not succeed, in
+        one line: the phase that failed (reach, grasp, lift, carry, place, press, pull) and what the object
+        did, read from the object alone as success is."""
+        raise NotImplementedError
+
+
+def _grasp_failure(name: str, states: np.ndarray) -> str | None:
+    """The reach or grasp failure of a free object that had to come off the table; None if it rose."""
+    moved = np.linalg.norm(states[:, :2] - states[0, :2], axis=1).max()
+    rise = states[:, 2].max() - states[0, 2]
+    if moved < MOVED and rise < MOVED:
+        return f"reach: the hand never moved the {name}"
+    if rise >= RISEN:
+        return None
+    x, y = states[:, 4], states[:, 5]  # quaternion (w, x, y, z): cos(lean) = 1 - 2 (x^2 + y^2)
+    lean = np.degrees(np.arccos(np.clip(1 - 2 * (x**2 + y**2), -1.0, 1.0))).max()
+    if lean > TIPPED:
+        return f"grasp: the hand knocked the {name} over ({100 * moved:.0f} cm from where it stood)"
+    return f"grasp: the hand pushed the {name} {100 * moved:.0f} cm but never lifted it"
+
 
 def _free_body_state(data: mujoco.MjData, qpos_adr: int) -> np.ndarray:
     """Position and quaternion of a free body."""
@@ -114,6 +138,15 @@ class Lift(Task):
 
     def success(self, scene: Scene, data: mujoco.MjData) -> bool:
         return bool(data.qpos[self.qpos + 2] - self.half_height >= self.lift_height)
+
+    def failure(self, states: np.ndarray) -> str:
+        heights = states[:, 2] - states[0, 2]
+        top, needed = f"{100 * heights.max():.0f}", f"{100 * self.lift_height:.0f}"
+        return _grasp_failure(self.object_body, states) or (
+            f"lift: the {self.object_body} rose {top} cm of the {needed} needed and slipped from the hand"
+            if heights[-1] < heights.max() - RISEN
+            else f"lift: the {self.object_body} rose only {top} cm of the {needed} needed, still held"
+        )
 
 
 class LiftBox(Lift):
@@ -193,6 +226,14 @@ class PickPlace(Task):
         on_plate = np.linalg.norm(pos[:2] - plate[:2]) <= self.plate_radius and pos[2] <= 0.06
         return bool(on_plate and not _touching(scene, data, self.body))
 
+    def failure(self, states: np.ndarray) -> str:
+        off, most = np.linalg.norm(states[-1, :2] - states[-1, 7:9]), self.plate_radius
+        return _grasp_failure(self.object_body, states) or (
+            f"carry: the banana ended {100 * off:.0f} cm from the plate's centre (at most {100 * most:.0f})"
+            if off > most
+            else "place: the banana is over the plate but the hand still holds it"
+        )
+
 
 class PressButton(Task):
     """Press a spring-loaded button at least 10 mm down."""
@@ -230,6 +271,12 @@ class PressButton(Task):
 
     def success(self, scene: Scene, data: mujoco.MjData) -> bool:
         return bool(data.qpos[self.qpos] >= self.threshold)
+
+    def failure(self, states: np.ndarray) -> str:
+        depth = states[:, 10].max()
+        if depth < MOVED:
+            return "reach: the button never moved (the hand did not press its cap)"
+        return f"press: the button went {1000 * depth:.0f} mm down of the {1000 * self.threshold:.0f} needed"
 
 
 class PullDrawer(Task):
@@ -300,6 +347,12 @@ class PullDrawer(Task):
 
     def success(self, scene: Scene, data: mujoco.MjData) -> bool:
         return bool(data.qpos[self.qpos] >= self.opening)
+
+    def failure(self, states: np.ndarray) -> str:
+        opening = states[:, 10].max()
+        if opening < MOVED:
+            return "reach: the drawer never moved (the hand did not hold its handle)"
+        return f"pull: the drawer opened {100 * opening:.0f} cm of the {100 * self.opening:.0f} needed"
 
 
 TASKS: dict[str, type[Task]] = {t.name: t for t in (Lift, LiftBox, PickPlace, PressButton, PullDrawer)}
