@@ -11,6 +11,7 @@ import numpy as np
 from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 from tqdm import tqdm
+from tqdm.contrib.logging import logging_redirect_tqdm
 
 from lerobot_opfa.datasets.io import new_dataset
 from lerobot_opfa.datasets.layout import OPFA_META_FILE, hand_entry
@@ -136,7 +137,8 @@ def _repo_id(env: OpfaSimEnv) -> str:
 def _record(env: OpfaSimEnv, episodes: int, dataset, region_names: list[str], seed: int) -> None:
     task, root = env.task.name, dataset.root
     records, attempts, reason = [], 0, ""
-    with tqdm(total=episodes, desc=f"demos {task}/{env.hand_model.name}") as bar:
+    # a failed episode's line goes above the progress bar, not after it on the same line
+    with logging_redirect_tqdm(), tqdm(total=episodes, desc=f"demos {task}/{env.hand_model.name}") as bar:
         while len(records) < episodes and attempts < MAX_ATTEMPTS_PER_EPISODE * episodes:
             region = region_names[len(records) % len(region_names)]
             episode_seed = seed + attempts
