@@ -5,6 +5,7 @@ button and lift the can as the built-ins do; a failed episode says in one line w
 from __future__ import annotations
 
 import re
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
@@ -20,25 +21,30 @@ from lerobot_opfa.envs.scene import HOME
 SEEDS = (0, 1, 2)
 
 
-@pytest.fixture
-def visual_only_allegro_spec(tmp_path: Path) -> Path:
-    """example-robot-data's Allegro with its <collision> elements removed: every link has only its visual
-    mesh, as URDFs exported from CAD tools often do."""
+def allegro_variant(tmp_path: Path, name: str, edit) -> Path:
+    """A spec for example-robot-data's Allegro URDF as `edit` (text -> text) rewrites it."""
     urdf = example_robot_data_allegro()
     share = urdf.parents[3]  # .../share/example-robot-data: what package://example-robot-data/ names
-    text = re.sub(r"<collision>.*?</collision>", "", urdf.read_text(), flags=re.S)
-    text = text.replace("package://example-robot-data/", f"{share}/")
-    model = tmp_path / "visual_only" / "allegro.urdf"
+    model = tmp_path / name / "allegro.urdf"
     model.parent.mkdir()
-    model.write_text(text)
+    model.write_text(edit(urdf.read_text()).replace("package://example-robot-data/", f"{share}/"))
     spec = model.parent / "spec.yaml"
     spec.write_text(
         (DATA / "user_allegro" / "spec.yaml")
         .read_text()
         .replace("MODEL_PATH", str(model))
-        .replace("name: erd_allegro", "name: cad_allegro")
+        .replace("name: erd_allegro", f"name: {name}")
     )
     return spec
+
+
+@pytest.fixture
+def visual_only_allegro_spec(tmp_path: Path) -> Path:
+    """The Allegro with its <collision> elements removed: every link has only its visual mesh, as URDFs
+    exported from CAD tools often do."""
+    return allegro_variant(
+        tmp_path, "cad_allegro", lambda text: re.sub(r"<collision>.*?</collision>", "", text, flags=re.S)
+    )
 
 
 def expert_successes(task: str, hand: str) -> list[int]:
@@ -71,6 +77,22 @@ def test_a_visual_only_urdf_link_collides_with_its_visual_mesh(visual_only_alleg
     colliding = (model.geom_contype[hand] | model.geom_conaffinity[hand]) > 0
     assert colliding.sum() == (~colliding).sum() == 21  # one visual and one collision mesh per link
     env.close()
+
+
+def test_a_urdf_with_a_massless_moving_link_is_simulated(tmp_path):
+    """MuJoCo refuses a moving body without mass; vendors' URDFs have them (genesis-world's Shadow hand's
+    thumb_base): such a link gets a negligible one."""
+
+    def massless(text: str) -> str:
+        start = text.index('<link name="link_13.0">')
+        end = text.index("</link>", start)
+        link = re.sub(r'(mass value|i[xyz]{2})="[^"]*"', r'\1="0"', text[start:end])
+        return text[:start] + link + text[end:]
+
+    spec = allegro_variant(tmp_path, "massless_allegro", massless)
+    link = ET.parse(spec.with_name("allegro.urdf")).getroot().find("link[@name='link_13.0']")
+    assert float(link.find("inertial/mass").get("value")) == 0.0
+    assert expert_successes("press_button", str(spec)) == list(SEEDS)
 
 
 class _IdleExpert(ScriptedExpert):

@@ -19,6 +19,10 @@ import yourdfpy
 
 from lerobot_opfa.hands.geometry import mjcf_link_meshes, resolve_urdf_mesh, urdf_link_meshes
 
+# Least mass (kg) and inertia (kg m^2) of a URDF link in simulation, far below any real link's: MuJoCo
+# refuses a moving body without mass, and vendors' URDFs have massless links (genesis-world's Shadow hand).
+BOUND_MASS, BOUND_INERTIA = 1e-5, 1e-10
+
 
 class ModelFileError(ValueError):
     """A model file that is missing or does not parse."""
@@ -86,7 +90,10 @@ def _urdf_for_mujoco(text: bytes, path: Path) -> tuple[str, dict[str, bytes]]:
     for old in root.findall("mujoco"):
         root.remove(old)
     extension = ET.SubElement(root, "mujoco")
-    ET.SubElement(extension, "compiler", fusestatic="false", discardvisual="false", balanceinertia="true")
+    ET.SubElement(
+        extension, "compiler", fusestatic="false", discardvisual="false", balanceinertia="true",
+        boundmass=str(BOUND_MASS), boundinertia=str(BOUND_INERTIA),
+    )  # fmt: skip
     return ET.tostring(root, encoding="unicode"), assets
 
 
