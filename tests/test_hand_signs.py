@@ -29,9 +29,13 @@ VENDORS = ["user_allegro_spec", "user_shadow_spec"]
 @pytest.fixture(params=HANDS + VENDORS)
 def spec(request, tmp_path) -> Path:
     """A correct spec: a built-in's, copied to be edited (renamed: an edited built-in is a hand of its
-    own), or a vendor model's as the tests' data gives it."""
+    own), or a vendor model's as the tests' data gives it, without its finger labels: a vendor's spec names
+    its joints and, where the model holds more than the hand, what is not the hand (`null`)."""
     if request.param in VENDORS:
-        return request.getfixturevalue(request.param)
+        labelled = request.getfixturevalue(request.param)
+        raw = yaml.safe_load(labelled.read_text())
+        raw["links"] = {link: label for link, label in raw.pop("links").items() if label is None}
+        return _write(labelled, {k: v for k, v in raw.items() if v or k != "links"})
     source = builtin_hands()[request.param]
     raw = yaml.safe_load(source.read_text())
     raw.update(name=f"my_{raw['name']}", model=str(source.parent / raw["model"]))
