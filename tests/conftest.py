@@ -6,11 +6,13 @@ from __future__ import annotations
 import importlib.util
 import logging
 import os
+import re
 import shutil
 import sysconfig
 from pathlib import Path
 
 import pytest
+import yaml
 
 from lerobot_opfa.hands.registry import builtin_hands, hand_models_dir
 
@@ -55,6 +57,29 @@ def user_allegro_spec(tmp_path: Path) -> Path:
         .read_text()
         .replace("MODEL_PATH", str(example_robot_data_allegro()))
     )
+    return spec
+
+
+@pytest.fixture
+def cad_like_allegro_spec(tmp_path: Path) -> Path:
+    """example-robot-data's Allegro as a CAD export writes a hand: links named after parts (`part_17_d3`),
+    visual meshes only, and a spec that names the actuated joints and nothing of the links. A stand-in for
+    a vendor's CAD export, which no PyPI package we know of ships."""
+    urdf = example_robot_data_allegro()
+    share = urdf.parents[3]  # .../share/example-robot-data: what package://example-robot-data/ names
+    text = re.sub(r"<collision>.*?</collision>", "", urdf.read_text(), flags=re.S)
+    links = re.findall(r'<link name="([^"]+)"', text)
+    for index, link in enumerate(links):
+        part = f"part_{17 + 3 * index}_d{index % 4}"
+        text = re.sub(rf'(<link name=|<parent link=|<child link=)"{re.escape(link)}"', rf'\1"{part}"', text)
+    model = tmp_path / "cad_allegro" / "allegro.urdf"
+    model.parent.mkdir()
+    model.write_text(text.replace("package://example-robot-data/", f"{share}/"))
+    raw = yaml.safe_load((DATA / "user_allegro" / "spec.yaml").read_text())
+    raw.pop("links")
+    raw.update(name="cad_allegro", model=str(model))
+    spec = model.parent / "spec.yaml"
+    spec.write_text(yaml.safe_dump(raw, sort_keys=False))
     return spec
 
 

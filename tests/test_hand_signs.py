@@ -23,7 +23,7 @@ from lerobot_opfa.hands.registry import builtin_hands
 from lerobot_opfa.hands.validate import frame_report
 
 HANDS = [name for name in BUILTIN_HANDS if load_spec(name).kind == "hand"]
-VENDORS = ["user_allegro_spec", "user_shadow_spec"]
+VENDORS = ["user_allegro_spec", "user_shadow_spec", "cad_like_allegro_spec"]
 
 
 @pytest.fixture(params=HANDS + VENDORS)
@@ -34,7 +34,7 @@ def spec(request, tmp_path) -> Path:
     if request.param in VENDORS:
         labelled = request.getfixturevalue(request.param)
         raw = yaml.safe_load(labelled.read_text())
-        raw["links"] = {link: label for link, label in raw.pop("links").items() if label is None}
+        raw["links"] = {link: label for link, label in raw.pop("links", {}).items() if label is None}
         return _write(labelled, {k: v for k, v in raw.items() if v or k != "links"})
     source = builtin_hands()[request.param]
     raw = yaml.safe_load(source.read_text())

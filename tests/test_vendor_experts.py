@@ -63,7 +63,9 @@ def expert_successes(task: str, hand: str) -> list[int]:
 
 
 @pytest.mark.parametrize("task", ["press_button", "lift"])
-@pytest.mark.parametrize("vendor", ["user_allegro_spec", "visual_only_allegro_spec", "user_shadow_spec"])
+@pytest.mark.parametrize(
+    "vendor", ["user_allegro_spec", "visual_only_allegro_spec", "cad_like_allegro_spec", "user_shadow_spec"]
+)
 def test_the_expert_succeeds_on_vendor_models(task, vendor, request):
     """Before the fixes the visual-only URDF collided with nothing (the hand sank through the button cap,
     0 of 20 presses) and example-robot-data's Allegro knocked the can over in 14 of 20 lifts (seeds 0 and
