@@ -97,6 +97,18 @@ def test_a_merge_refuses_a_robot_whose_action_body_is_not_its_states(ee_demos, t
     assert not (tmp_path / "merged").exists()
 
 
+def test_a_stock_policys_latent_dataset_of_the_ee_delta_robot_keeps_each_keys_body(ee_demos, tmp_path):
+    code = main([
+        "policy", "latent-dataset", "--input", str(ee_demos), "--output", str(tmp_path / "latent"),
+        "--joint-map", str(ee_map(tmp_path / "map.yaml")),
+    ])  # fmt: skip
+    assert code == 0
+    features = json.loads((tmp_path / "latent" / "meta" / "info.json").read_text())["features"]
+    state, action = features[OBS_STATE]["names"], features[ACTION]["names"]
+    assert state[:12] == list(EE_STATE_NAMES[:12]) and action[:4] == ["dx", "dy", "dz", "dyaw"]
+    assert state[12:] == action[4:] and state[12] == "z0"  # the jaw's latent, read from each key's entry
+
+
 def test_lerobot_train_then_lerobot_eval_on_the_ee_delta_robot_with_no_renaming(ee_demos, tmp_path):
     bin_dir = Path(sys.executable).parent
     out = tmp_path / "train"

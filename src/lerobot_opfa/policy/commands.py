@@ -18,6 +18,9 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     dataset.add_argument("--output", type=Path, required=True)
     dataset.add_argument("--galr", help="GaLR checkpoint (default: the merge's, else the packaged default)")
     dataset.add_argument("--drop", default="", help="comma-separated features to leave out")
+    dataset.add_argument(
+        "--joint-map", type=Path, help="how a robot's dataset holds its hand (as --policy.joint_map)"
+    )
     dataset.add_argument("--overwrite", action="store_true")
     dataset.set_defaults(func=_dataset)
     convert = policy.add_parser(
@@ -45,7 +48,7 @@ def _dataset(args: argparse.Namespace) -> None:
     from lerobot_opfa.policy.stock import latent_dataset
 
     drop = tuple(name for name in args.drop.split(",") if name)
-    out = latent_dataset(args.input, args.output, args.galr, drop, args.overwrite)
+    out = latent_dataset(args.input, args.output, args.galr, drop, args.overwrite, args.joint_map)
     print(f"wrote {out}: the frames of {args.input} with state and action in the policy space")
 
 

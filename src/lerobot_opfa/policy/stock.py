@@ -59,10 +59,10 @@ CHUNK = 4096
 
 def latent_dataset(
     source: Path | str, output: Path | str, galr_path: str | None = None, drop: tuple[str, ...] = (),
-    overwrite: bool = False,
+    overwrite: bool = False, joint_map: Path | str | None = None,
 ) -> Path:  # fmt: skip
     """Writes `output` (atomically): `source`'s frames with state and action in the normalised policy
-    space, without the features `drop` names; returns it."""
+    space, without the features `drop` names (a robot's dataset read through `joint_map`); returns it."""
     (source,) = check_outside_inputs([source], output)
     check_dataset_folder(source)
     meta = LeRobotDatasetMetadata(f"local/{source.name}", root=source)
@@ -73,7 +73,7 @@ def latent_dataset(
             f"--drop {', '.join(refused)}: not a feature of {source} that may go (its features: "
             f"{', '.join(k for k in meta.features if k not in kept)})"
         )
-    config = OpfaConfig(device="cpu", galr_path=galr_path)
+    config = OpfaConfig(device="cpu", galr_path=galr_path, joint_map=joint_map and str(joint_map))
     layout, galr = resolve_config(config, meta)
     steps = policy_space_steps(config, meta, layout, galr)
     state, action = _policy_space_frames(steps, source, layout.kind == "merged")
