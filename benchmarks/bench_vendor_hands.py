@@ -209,7 +209,7 @@ def plot(results: list[dict], path: Path) -> None:
         ax.text(left[i], i, f"  {r['spec_lines']} spec lines", va="center", fontsize=8)
     ax.set_xlabel("wall minutes on 2 CPU cores (demos: 20 episodes each)")
     ax.set_xlim(0, max(left) * 1.35)
-    ax.legend(fontsize=8, loc="lower right")
+    ax.legend(fontsize=8, loc="upper right")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
 
