@@ -14,6 +14,7 @@ from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
+import numpy as np
 import pytest
 from subprocesses import run_command
 
@@ -96,6 +97,21 @@ def test_sim_show_png_and_video(tmp_path, capsys):
     assert code == 0
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert mp4.stat().st_size > 1000 and "expert succeeded" in capsys.readouterr().out
+
+
+def test_sim_show_says_why_the_expert_failed(tmp_path, capsys, monkeypatch):
+    from lerobot_opfa.envs.experts import ScriptedExpert
+    from lerobot_opfa.envs.scene import HOME
+
+    def stay_home(expert):
+        expert.t += 1
+        return np.concatenate([HOME, expert.env.hand_open])
+
+    monkeypatch.setattr(ScriptedExpert, "act", stay_home)
+    png, mp4 = tmp_path / "scene.png", tmp_path / "expert.mp4"
+    argv = ["sim", "show", "--task", "press_button", "--hand", "umi", "--out", str(png), "--video", str(mp4)]
+    assert main(argv) == 0
+    assert "expert failed: reach: the button never moved" in capsys.readouterr().out
 
 
 def test_cli_bad_names_are_clear_errors(tmp_path, capsys):
