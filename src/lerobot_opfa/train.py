@@ -67,17 +67,17 @@ def train(argv: list[str]) -> None:
         torch.set_num_threads(len(usable))
     _reuse_freed_memory()
     make = _in_memory(lerobot_train.make_train_eval_datasets)
-    # LeRobot 0.6.1 offers no seam for any of the three, so they are swapped for this call only:
-    # - `train(cfg)` calls the module's `make_train_eval_datasets` by name and takes no dataset or factory;
-    # - `parser.wrap()` would take a parsed config instead of `sys.argv`, but
-    #   `TrainPipelineConfig.validate()` then reads `--policy.path` and `--reward_model.path` from
-    #   `sys.argv` itself (`parser.get_path_arg`), as does the wrapper's plugin loading
-    #   (`--*.discover_packages_path`): no argv parameter exists;
-    # - `parser.wrap()` catches only draccus's `DecodingError`; for a config's `__post_init__` error draccus
-    #   prints a generic line and exits, hiding the cause: `_parse_showing_cause` raises the cause instead.
+    # Three pieces of LeRobot 0.6.1 are swapped for this call only, each because LeRobot offers no seam:
     with (
+        # `train(cfg)` calls the module's `make_train_eval_datasets` by name; it takes no dataset or
+        # factory, and datasets have no registry (`DatasetConfig` is a plain dataclass).
         mock.patch.object(lerobot_train, "make_train_eval_datasets", make),
+        # `parser.wrap()` catches only draccus's `DecodingError`; for a config's `__post_init__` error
+        # draccus prints a generic line and exits, hiding the cause, which `_parse_showing_cause` raises.
         mock.patch.object(draccus, "parse", _parse_showing_cause(draccus.parse)),
+        # `parser.wrap()` would take a parsed config, but `TrainPipelineConfig.validate()` reads
+        # `--policy.path` / `--reward_model.path` from `sys.argv` itself (`parser.get_path_arg`), as does
+        # the wrapper's plugin loading (`--*.discover_packages_path`): there is no argv parameter.
         mock.patch.object(sys, "argv", ["lerobot-opfa train", *argv]),
     ):
         lerobot_train.main()
