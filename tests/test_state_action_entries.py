@@ -138,3 +138,12 @@ def test_lerobot_train_then_lerobot_eval_on_the_ee_delta_robot_with_no_renaming(
     ], env=ENV, timeout=600)  # fmt: skip
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     assert json.loads((evaluated / "eval_info.json").read_text())["overall"]["n_episodes"] == 1
+
+
+def test_ee_delta_control_of_a_dexterous_hand_is_one_line_naming_the_flag():
+    from lerobot_opfa.envs.config import FlagError, OpfaEnvConfig
+
+    with pytest.raises(FlagError, match=r"`env.control`: control ee_delta drives a gripper .* 'leap' has 16"):
+        OpfaEnvConfig(hand="leap", control="ee_delta")
+    with pytest.raises(FlagError, match="unknown control 'delta'; valid controls: joints, ee_delta"):
+        OpfaEnvConfig(hand="umi", control="delta")

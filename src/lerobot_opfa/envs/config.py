@@ -15,7 +15,7 @@ from lerobot.envs.configs import EnvConfig
 from lerobot.processor import ObservationProcessorStep, PolicyProcessorPipeline
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGES, OBS_STATE
 
-from lerobot_opfa.envs.control import CONTROLS, EE_ACTION_NAMES, EE_STATE_NAMES
+from lerobot_opfa.envs.control import EE_ACTION_NAMES, EE_STATE_NAMES, check_control
 from lerobot_opfa.envs.env import OBS_TYPES, POINTCLOUD_SOURCES, check_choice, parse_cameras
 from lerobot_opfa.envs.regions import parse_regions
 from lerobot_opfa.envs.scene import WRIST_JOINTS
@@ -96,15 +96,10 @@ class OpfaEnvConfig(EnvConfig):
             parse_cameras(self.depth_cameras)
         with flag("env.rgb_cameras"):
             parse_cameras(self.rgb_cameras)
-        with flag("env.control"):
-            check_choice("control", self.control, CONTROLS)
         with flag("env.hand"):
             spec = load_spec(self.hand)
-            if self.control == "ee_delta" and len(spec.joints) != 1:
-                raise ValueError(
-                    f"control ee_delta drives a gripper (one actuated joint); hand '{spec.name}' has "
-                    f"{len(spec.joints)}"
-                )
+        with flag("env.control"):
+            check_control(self.control, spec.name, len(spec.joints))
         if self.control == "ee_delta":
             state, action = len(EE_STATE_NAMES), len(EE_ACTION_NAMES)
         else:

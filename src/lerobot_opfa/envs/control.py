@@ -24,19 +24,32 @@ EE_ACTION_NAMES = ("dx", "dy", "dz", "dyaw", "grasp")
 EE_STATE_NAMES = (*WRIST_JOINTS, *(f"{joint}.vel" for joint in WRIST_JOINTS), "gripper")
 
 
+def check_control(control: str, hand: str, dof: int) -> None:
+    """`control` is one of `CONTROLS` and fits the hand: `ee_delta` drives a gripper."""
+    if control not in CONTROLS:
+        raise ValueError(f"unknown control '{control}'; valid controls: {', '.join(CONTROLS)}")
+    if control == "ee_delta" and dof != 1:
+        raise ValueError(
+            f"control ee_delta drives a gripper (one actuated joint); hand '{hand}' has {dof}: use control "
+            "'joints'"
+        )
+
+
+def gripper_closed(hand: HandModel) -> np.ndarray:
+    """A gripper's closed pose: each joint at the limit its grasp pose lies towards (the grasp poses are
+    set for larger objects than the benchmark's, so a gripper closes fully)."""
+    open_, grasp = (hand.pose(name).double().cpu().numpy() for name in ("open", "grasp"))
+    lower, upper = hand.lower.double().cpu().numpy(), hand.upper.double().cpu().numpy()
+    return np.where(grasp > open_, upper, np.where(grasp < open_, lower, grasp))
+
+
 class EndEffectorDeltas:
     """`ee_delta` control of a one-joint gripper: turns a step and a grasp command into the wrist's and
     the gripper's targets, keeping the wrist's target between steps, and reads the state it reports."""
 
     def __init__(self, hand: HandModel) -> None:
-        if hand.dof != 1:
-            raise ValueError(
-                f"ee_delta control drives a gripper (one actuated joint); hand '{hand.name}' has {hand.dof}: "
-                "use control 'joints'"
-            )
-        self.open = float(hand.pose("open")[0])
-        grasp = float(hand.pose("grasp")[0])
-        self.closed = float(hand.upper[0] if grasp > self.open else hand.lower[0])
+        check_control("ee_delta", hand.name, hand.dof)
+        self.open, self.closed = float(hand.pose("open")[0]), float(gripper_closed(hand)[0])
         self.action_space = gym.spaces.Box(
             np.array([-MAX_STEP] * 3 + [-MAX_TURN, 0.0], np.float32),
             np.array([MAX_STEP] * 3 + [MAX_TURN, 1.0], np.float32),

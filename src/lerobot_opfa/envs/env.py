@@ -8,7 +8,7 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
-from lerobot_opfa.envs.control import CONTROLS, EE_ACTION_NAMES, EE_STATE_NAMES, EndEffectorDeltas
+from lerobot_opfa.envs.control import EE_ACTION_NAMES, EE_STATE_NAMES, EndEffectorDeltas, check_control
 from lerobot_opfa.envs.observation import ColourCameras, DepthPointCloud, GeometryPointCloud
 from lerobot_opfa.envs.regions import REGIONS, parse_regions
 from lerobot_opfa.envs.scene import (
@@ -78,7 +78,7 @@ class OpfaSimEnv(gym.Env):
     ) -> None:
         self.task = make_task(task)
         self.hand_model = load_hand(hand)
-        self.control = check_choice("control", control, CONTROLS)
+        check_control(control, self.hand_model.name, self.hand_model.dof)
         self.ee = EndEffectorDeltas(self.hand_model) if control == "ee_delta" else None
         self.regions = parse_regions(regions)
         self.obs_type = check_choice("obs_type", obs_type, OBS_TYPES)

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lerobot_opfa.envs.control import gripper_closed
 from lerobot_opfa.envs.env import OpfaSimEnv
 from lerobot_opfa.envs.scene import HOME, tool_to_world
 from lerobot_opfa.envs.tasks import Lift, LiftBox, PickPlace, PressButton, PullDrawer
@@ -66,9 +67,7 @@ class ScriptedExpert:
         self.grasp = hand.pose("grasp").double().cpu().numpy()
         self.lower, self.upper = hand.lower.double().cpu().numpy(), hand.upper.double().cpu().numpy()
         if hand.spec.kind == "gripper":
-            self.closed = np.where(
-                self.grasp > self.open, self.upper, np.where(self.grasp < self.open, self.lower, self.grasp)
-            )
+            self.closed = gripper_closed(hand)
         else:
             self.closed = np.clip(self.open + SQUEEZE * (self.grasp - self.open), self.lower, self.upper)
         self.tool = env.scene.tool
