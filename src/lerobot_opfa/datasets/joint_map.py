@@ -255,8 +255,7 @@ class JointMap:
             raw, low, high = x[:, names.index(entry)], float(lower[i]), float(upper[i])
             width, recorded = high - low, float(raw.max() - raw.min())
             span = abs(mapped.scale) * recorded
-            slack = LIMIT_TOLERANCE * width
-            within = low - slack <= float(raw.min()) and float(raw.max()) <= high + slack
+            within = fits_limits((float(raw.min()), float(raw.max())), (low, high))
             if mapped.scale != 1 and span < SPAN_FRACTION * width <= recorded and within:
                 raise JointMapError(
                     f"{self.source}: entry {entry!r} with scale {mapped.scale:g} moves joint '{joint}' over "
@@ -322,6 +321,14 @@ class JointMap:
         out[..., columns_body] = body
         out[..., columns] = ((q - offset.to(q.device, q.dtype)) / scale.to(q.device, q.dtype)).to(out.dtype)
         return out
+
+
+def fits_limits(recorded: tuple[float, float], limits: tuple[float, float], scale: float = 1.0) -> bool:
+    """A recorded (min, max), times `scale`, within a joint's (lower, upper), give or take the limit
+    check's tolerance."""
+    low, high = sorted(scale * v for v in recorded)
+    slack = LIMIT_TOLERANCE * (limits[1] - limits[0])
+    return limits[0] - slack <= low and high <= limits[1] + slack
 
 
 def _mapped_joint(value, where: str) -> MappedJoint:

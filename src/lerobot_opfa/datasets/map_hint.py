@@ -18,7 +18,7 @@ from pathlib import Path
 from lerobot.utils.constants import OBS_STATE
 
 from lerobot_opfa.datasets.io import read_json
-from lerobot_opfa.hands.model import LIMIT_TOLERANCE
+from lerobot_opfa.datasets.joint_map import fits_limits
 from lerobot_opfa.hands.registry import hand_ref, load_hand
 from lerobot_opfa.hands.spec import HandSpec
 
@@ -149,18 +149,12 @@ def _limits(spec: HandSpec) -> dict[str, tuple[float, float]]:
     return {j: (lower[i], upper[i]) for i, j in enumerate(hand.joint_names)}
 
 
-def _fits(recorded: tuple[float, float], limits: tuple[float, float], scale: float = 1.0) -> bool:
-    low, high = sorted(scale * v for v in recorded)
-    slack = LIMIT_TOLERANCE * (limits[1] - limits[0])
-    return limits[0] - slack <= low and high <= limits[1] + slack
-
-
 def _misfits(names: list[str], spec: HandSpec, ranges: dict[str, tuple[float, float]]) -> int:
     """Proposed entries whose recorded range fits the joint's limits neither as it is, nor in degrees, nor
     the other way round: a sign that the robot carries another hand."""
     limits = _limits(spec)
     return sum(
-        not any(_fits(ranges[e], limits[j], s) for s in (1.0, -1.0, DEGREE, -DEGREE))
+        not any(fits_limits(ranges[e], limits[j], s) for s in (1.0, -1.0, DEGREE, -DEGREE))
         for j, e in _pairs(names, spec).items()
         if e in ranges
     )
@@ -173,14 +167,14 @@ def units_from_range(
     where only the negated range fits, degrees where the range is many times the joint's and fits in degrees,
     else the range stretched onto the limits; None where it fits as it is or is in the spec's units."""
     low, high = recorded
-    if high == low or _fits(recorded, limits):
+    if high == low or fits_limits(recorded, limits):
         return None
-    if _fits(recorded, limits, -1.0):
+    if fits_limits(recorded, limits, -1.0):
         return -1.0, 0.0
     if high - low <= UNITS_FACTOR * (limits[1] - limits[0]):
         return None
     for scale in (DEGREE, -DEGREE):
-        if _fits(recorded, limits, scale):
+        if fits_limits(recorded, limits, scale):
             return scale, 0.0
     scale = (limits[1] - limits[0]) / (high - low)
     return scale, limits[0] - scale * low
