@@ -1216,7 +1216,7 @@ def define_probes(fx: dict[str, Path], work: Path) -> list[Probe]:  # noqa: C901
         "--hand",
         "umi",
         "--episodes",
-        "6",
+        "40",  # about 6 s of writing on a 2-core machine: the signal, 1 s in, lands while it writes
         "--n-points",
         "128",
         "--pointcloud-source",
@@ -1869,7 +1869,9 @@ def define_probes(fx: dict[str, Path], work: Path) -> list[Probe]:  # noqa: C901
     # --- policy: the Python API with bad observations (item 3) --------------------------------------
     holder: dict[str, Any] = {}
 
-    def act(state: torch.Tensor | None = None, cloud: torch.Tensor | None = None) -> torch.Tensor:
+    def act(
+        state: torch.Tensor | None = None, cloud: torch.Tensor | None = None, hand: str = "umi"
+    ) -> torch.Tensor:
         if "policy" not in holder:
             from lerobot.policies.factory import make_pre_post_processors
 
@@ -1888,6 +1890,7 @@ def define_probes(fx: dict[str, Path], work: Path) -> list[Probe]:  # noqa: C901
             "observation.pointcloud": torch.randn(256 * 3) * 0.03 if cloud is None else cloud,
             "observation.environment_state": torch.tensor([0.05, -0.02, 0.04]),
             "task": "lift the object",
+            "observation.hand": hand,  # the robot of the frames: the checkpoint drives umi and inspire
         }
         policy.reset()
         with torch.no_grad():
@@ -1915,7 +1918,9 @@ def define_probes(fx: dict[str, Path], work: Path) -> list[Probe]:  # noqa: C901
         "policy_ok_inspire",
         "policy",
         f"{flow} (inspire state, 256-point cloud)",
-        lambda: act(state=torch.cat([torch.tensor([0.0, 0.0, 0.3, 0, 0, 0]), torch.tensor(q_open[0])])),
+        lambda: act(
+            state=torch.cat([torch.tensor([0.0, 0.0, 0.3, 0, 0, 0]), torch.tensor(q_open[0])]), hand="inspire"
+        ),
         "accept",
         check=finite_action(12),
     )
@@ -2006,14 +2011,14 @@ def define_probes(fx: dict[str, Path], work: Path) -> list[Probe]:  # noqa: C901
     add_cli(
         "policy_convert_io_not_a_checkpoint",
         "policy",
-        ["policy", "convert-io", "--policy", fx["empty"], "--galr", galr, "--output", d / "out"],
+        ["policy", "convert-io", "--policy", fx["empty"], "--output", d / "out"],
         words=["empty"],
         absent=(d / "out",),
     )
     add_cli(
         "policy_convert_io_on_a_dataset",
         "policy",
-        ["policy", "convert-io", "--policy", umi, "--galr", galr, "--output", w("v1") / "out"],
+        ["policy", "convert-io", "--policy", umi, "--output", w("v1") / "out"],
         words=["umi"],
         absent=(w("v1") / "out",),
     )
@@ -2025,8 +2030,6 @@ def define_probes(fx: dict[str, Path], work: Path) -> list[Probe]:  # noqa: C901
             "convert-io",
             "--policy",
             w("nowhere") / "ckpt_typo",
-            "--galr",
-            galr,
             "--output",
             w("v2") / "out",
         ],
@@ -2036,7 +2039,7 @@ def define_probes(fx: dict[str, Path], work: Path) -> list[Probe]:  # noqa: C901
     add_cli(
         "policy_convert_io_on_an_opfa_checkpoint",
         "policy",
-        ["policy", "convert-io", "--policy", fx["checkpoint"], "--galr", galr, "--output", w("v3") / "out"],
+        ["policy", "convert-io", "--policy", fx["checkpoint"], "--output", w("v3") / "out"],
         words=["opfa"],
         absent=(w("v3") / "out",),
     )

@@ -11,12 +11,13 @@ import numpy as np
 import pytest
 from conftest import BUILTIN_HANDS
 
-from lerobot_opfa.envs.config import FlagError, OpfaEnvConfig
+from lerobot_opfa.envs.config import OpfaEnvConfig
 from lerobot_opfa.envs.env import OpfaSimEnv
 from lerobot_opfa.envs.experts import SQUEEZE, ScriptedExpert
 from lerobot_opfa.envs.observation import DEPTH_QUALITY
 from lerobot_opfa.envs.regions import REGIONS, parse_regions
 from lerobot_opfa.envs.tasks import TASKS
+from lerobot_opfa.flags import FlagError
 from lerobot_opfa.pointclouds import WORKSPACE_HIGH, WORKSPACE_LOW
 
 TASK_NAMES = list(TASKS)

@@ -6,6 +6,7 @@ import pytest
 import torch
 from lerobot.configs.types import FeatureType, PolicyFeature
 
+from lerobot_opfa.flags import FlagError
 from lerobot_opfa.policy.configuration_opfa import OpfaConfig
 from lerobot_opfa.policy.image_encoder import ImageEncoder, SpatialSoftmax
 
@@ -77,9 +78,9 @@ def test_visual_inputs_without_what_they_read_are_one_line_errors(visual_inputs,
 
 
 def test_unknown_visual_inputs_and_backbones_list_the_valid_ones():
-    with pytest.raises(ValueError, match="`visual_inputs` must be one of"):
+    with pytest.raises(FlagError, match="`visual_inputs` must be one of"):  # as a --policy.* flag
         OpfaConfig(visual_inputs="depth")
-    with pytest.raises(ValueError, match="`image_backbone` must be one of"):
+    with pytest.raises(FlagError, match="`image_backbone` must be one of"):
         OpfaConfig(image_backbone="resnet50")
 
 

@@ -1,9 +1,14 @@
-"""Argument types and the parser class of `lerobot-opfa`: a bad flag is one line, never a traceback."""
+"""Argument types and the parser class of `lerobot-opfa`, and the error of a config flag in LeRobot's command
+lines: a bad flag is one line, never a traceback."""
 
 from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+from draccus.utils import DecodingError
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -47,3 +52,18 @@ def _number(text: str, kind: type, what: str):
         return kind(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"must be {what}, got {text!r}") from None
+
+
+class FlagError(DecodingError):
+    """A refused `--env.*`, `--robot.*` or `--policy.*` value. LeRobot's command lines print a DecodingError
+    with its message (`error: `env.hand`: ...`); a config's ValueError reaches the user only as draccus's
+    "Couldn't instantiate class ..."."""
+
+
+@contextmanager
+def flag(name: str) -> Iterator[None]:
+    """Raises the ValueErrors of the block as a `FlagError` of the flag `name` (e.g. `env.hand`)."""
+    try:
+        yield
+    except ValueError as err:
+        raise FlagError(tuple(name.split(".")), str(err)) from None

@@ -3,13 +3,10 @@ LeRobot adapter on top of the simulator (`env`, `tasks`)."""
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
 import gymnasium as gym
-from draccus.utils import DecodingError
 from lerobot.configs import FeatureType, PolicyFeature
 from lerobot.envs.configs import EnvConfig
 from lerobot.processor import ObservationProcessorStep, PolicyProcessorPipeline
@@ -21,22 +18,8 @@ from lerobot_opfa.envs.regions import parse_regions
 from lerobot_opfa.envs.scene import WRIST_JOINTS
 from lerobot_opfa.envs.tasks import ENV_STATE_DIM, TASKS, check_task
 from lerobot_opfa.features import OBS_HAND, OBS_POINTCLOUD
+from lerobot_opfa.flags import flag
 from lerobot_opfa.hands.registry import load_spec
-
-
-class FlagError(DecodingError):
-    """A refused `--env.*` or `--robot.*` value. LeRobot's command lines print a DecodingError as one line
-    (`error: `env.hand`: ...`); a config's ValueError reaches the user only as draccus's "Couldn't
-    instantiate class ..." at the end of a traceback."""
-
-
-@contextmanager
-def flag(name: str) -> Iterator[None]:
-    """Raises the ValueErrors of the block as a `FlagError` of the flag `name` (e.g. `env.hand`)."""
-    try:
-        yield
-    except ValueError as err:
-        raise FlagError(tuple(name.split(".")), str(err)) from None
 
 
 def gym_id(task: str) -> str:

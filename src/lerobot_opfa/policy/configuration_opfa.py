@@ -16,6 +16,7 @@ from lerobot.optim.schedulers import CosineDecayWithWarmupSchedulerConfig
 from lerobot.utils.constants import ACTION, OBS_STATE
 
 from lerobot_opfa.features import OBS_POINTCLOUD
+from lerobot_opfa.flags import flag
 from lerobot_opfa.pointclouds import DepthRig
 from lerobot_opfa.policy.action_spaces import ACTION_SPACES, ActionSpace
 from lerobot_opfa.policy.image_encoder import IMAGE_BACKBONES
@@ -140,6 +141,10 @@ class OpfaConfig(PreTrainedConfig):
 
     def __post_init__(self):
         super().__post_init__()
+        with flag("policy"):  # refused as a `--policy.*` flag (`flags.FlagError`), its message kept
+            self._check_and_settle()
+
+    def _check_and_settle(self) -> None:
         self.down_dims = tuple(self.down_dims)
         self.pointcloud_widths = tuple(self.pointcloud_widths)
         self.state_mlp_dims = tuple(self.state_mlp_dims)

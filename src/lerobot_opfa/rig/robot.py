@@ -33,11 +33,11 @@ import yaml
 from lerobot.robots.config import RobotConfig
 from lerobot.robots.robot import Robot
 
-from lerobot_opfa.envs.config import FlagError, flag
 from lerobot_opfa.envs.env import OpfaSimEnv, parse_cameras
 from lerobot_opfa.envs.observation import ColourCameras, DepthPointCloud
 from lerobot_opfa.envs.regions import parse_regions
 from lerobot_opfa.envs.tasks import check_task
+from lerobot_opfa.flags import FlagError, flag
 from lerobot_opfa.hands.registry import load_spec
 from lerobot_opfa.pointclouds import DepthRig
 
