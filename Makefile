@@ -34,9 +34,10 @@ which-python:
 demo: $(VENV)/.installed
 	$(VENV)/bin/lerobot-opfa demo --output-dir outputs/demo
 
-# One worker per core, each test file on one worker (its module fixtures are built once).
+# One worker per core, each test file on one worker (its module fixtures are built once), the files in the
+# order conftest.py gives them (the longest first, so that no worker is left alone with one at the end).
 test: $(VENV)/.installed
-	$(PY) -m pytest -q -n auto --dist loadfile
+	$(PY) -m pytest -q -n auto --dist loadfile --no-loadscope-reorder
 
 lint: $(VENV)/.installed
 	$(VENV)/bin/ruff check src tests benchmarks examples

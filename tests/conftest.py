@@ -11,10 +11,14 @@ import shutil
 import sysconfig
 from pathlib import Path
 
-import pytest
-import yaml
+# No test reaches the network (`make test` sets these too); set before anything imports huggingface_hub.
+os.environ.setdefault("HF_HUB_OFFLINE", "1")
+os.environ.setdefault("MUJOCO_GL", "egl")
 
-from lerobot_opfa.hands.registry import builtin_hands, hand_models_dir
+import pytest  # noqa: E402
+import yaml  # noqa: E402
+
+from lerobot_opfa.hands.registry import builtin_hands, hand_models_dir  # noqa: E402
 
 if os.environ.get("PYTEST_XDIST_WORKER"):
     # `make test` runs a worker per core: one torch thread each, here and in the processes tests start
@@ -23,6 +27,21 @@ if os.environ.get("PYTEST_XDIST_WORKER"):
 
     os.environ["OMP_NUM_THREADS"] = "1"
     torch.set_num_threads(1)
+
+LONGEST_FIRST = (
+    "test_experiments.py", "test_any_lerobot_policy.py", "test_rig.py", "test_policy.py",
+    "test_user_hands.py", "test_distributed.py", "test_training_fast.py", "test_depth.py",
+    "test_refusals_checkpoints.py", "test_guards.py",
+)  # fmt: skip
+"""The files that take longest (they run LeRobot's commands), by their measured durations."""
+
+
+def pytest_collection_modifyitems(items):
+    """The longest files first: `make test` gives each file to one worker, in this order, and a long file
+    started last would keep one worker busy while the other idles."""
+    rank = {name: i for i, name in enumerate(LONGEST_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
+
 
 DATA = Path(__file__).parent / "data"
 BUILTIN_HANDS = sorted(builtin_hands())

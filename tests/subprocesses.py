@@ -1,6 +1,7 @@
 """Running the package's and LeRobot's commands from tests so that none can hang the suite: each runs in
 its own process group, and on its timeout the whole group (a torchrun's ranks too, which hold the output
-pipes open) is killed and the test fails with the command's last output."""
+pipes open) is killed and the test fails with the command's last output. LeRobot's entry points can also
+run in the test's process, where what is tested is not the process itself."""
 
 from __future__ import annotations
 
@@ -33,3 +34,13 @@ def run_command(command: Sequence[str], timeout: float, **kwargs) -> subprocess.
                 f"{out[-TAIL:]}\n{err[-TAIL:]}"
             )
     return subprocess.CompletedProcess(command, process.returncode, out, err)
+
+
+def run_lerobot_here(script: str, argv: Sequence[str], monkeypatch: pytest.MonkeyPatch) -> None:
+    """LeRobot's entry point `lerobot.scripts.<script>` run in this process on `argv` (it reads its flags
+    from sys.argv), where a subprocess would add only its start-up (about 6 s of imports)."""
+    import importlib
+    import sys
+
+    monkeypatch.setattr(sys, "argv", [script.replace("_", "-"), *map(str, argv)])
+    importlib.import_module(f"lerobot.scripts.{script}").main()

@@ -17,6 +17,7 @@ from lerobot.utils.feature_utils import hw_to_dataset_features
 from scipy.spatial import cKDTree
 from subprocesses import run_command
 
+from lerobot_opfa import cli
 from lerobot_opfa.envs.env import OpfaSimEnv
 from lerobot_opfa.features import OBS_POINTCLOUD
 from lerobot_opfa.pointclouds import VOXEL, DepthRig, DepthRigError
@@ -121,15 +122,25 @@ def test_calibration_errors_are_one_line(rig, tmp_path):
         assert str(path) in str(error.value) and "\n" not in str(error.value)
 
 
-def _train(root: Path, out: Path, *flags: str) -> subprocess.CompletedProcess:
+def _train_flags(root: Path, out: Path, *flags: str) -> list[str]:
     policy = {"type": "opfa", "action_space": "raw", "device": "cpu", "push_to_hub": "false", "horizon": 8,
               "down_dims": "[16,32]", "n_action_steps": 4, "pointcloud_widths": "[8,16]",
               "pointcloud_feature_dim": 8, "cloud_points": 64}  # fmt: skip
-    argv = [*(f"--policy.{k}={v}" for k, v in policy.items()), "--dataset.repo_id=local/rig",
+    return [*(f"--policy.{k}={v}" for k, v in policy.items()), "--dataset.repo_id=local/rig",
             f"--dataset.root={root}", "--steps=2", "--batch_size=2", "--num_workers=0", "--save_freq=2",
             f"--output_dir={out}", "--wandb.enable=false", *flags]  # fmt: skip
-    command = [sys.executable, "-m", "lerobot.scripts.lerobot_train", *argv]
+
+
+def _train(root: Path, out: Path, *flags: str) -> subprocess.CompletedProcess:
+    """LeRobot's `lerobot-train`, a real subprocess."""
+    command = [sys.executable, "-m", "lerobot.scripts.lerobot_train", *_train_flags(root, out, *flags)]
     return run_command(command, env=ENV, timeout=600)
+
+
+def _refused(capsys, root: Path, out: Path, *flags: str) -> str:
+    """The one line `lerobot-opfa train` (LeRobot's training loop, in this process) refuses with."""
+    assert cli.main(["train", *_train_flags(root, out, *flags)]) != 0
+    return capsys.readouterr().err.strip().splitlines()[-1]
 
 
 def test_lerobot_train_on_depth_then_the_checkpoint_acts_on_a_robots_depth_frames(rig, tmp_path):
@@ -156,19 +167,19 @@ def test_lerobot_train_on_depth_then_the_checkpoint_acts_on_a_robots_depth_frame
         calibration.with_suffix(".moved").rename(calibration)
 
 
-def test_depth_without_calibration_and_a_pose_that_sees_nothing_are_errors_before_training(rig, tmp_path):
+def test_depth_without_calibration_and_a_pose_that_sees_nothing_are_errors_before_training(
+    rig, tmp_path, capsys
+):
     root, calibration, _ = rig
-    done = _train(root, tmp_path / "a")
-    assert done.returncode != 0
-    assert f"give the depth cameras {KEYS} their calibration: --policy.cameras=FILE" in done.stderr
+    last = _refused(capsys, root, tmp_path / "a")
+    assert f"give the depth cameras {KEYS} their calibration: --policy.cameras=FILE" in last, last
     raw = yaml.safe_load(calibration.read_text())
     for camera in raw["cameras"].values():
         camera["camera_to_world"][2][3] += 5.0  # five metres up: every point above the workspace
     blind = tmp_path / "blind.yaml"
     blind.write_text(yaml.safe_dump(raw))
-    done = _train(root, tmp_path / "b", f"--policy.cameras={blind}")
-    assert done.returncode != 0 and not (tmp_path / "b" / "checkpoints").exists()
-    last = done.stderr.strip().splitlines()[-1]
+    last = _refused(capsys, root, tmp_path / "b", f"--policy.cameras={blind}")
+    assert not (tmp_path / "b" / "checkpoints").exists()
     assert f"{root}, frame 0: the depth frames of" in last and "put no point in the workspace" in last, last
 
 
@@ -189,7 +200,6 @@ def test_depth_datasets_of_two_hands_merge_with_their_frames_and_train_one_polic
 def test_clouds_made_once_train_in_memory_and_the_checkpoint_still_takes_depth_frames(rig, tmp_path, capsys):
     from lerobot.policies.factory import make_pre_post_processors
 
-    from lerobot_opfa import cli
     from lerobot_opfa.policy.modeling_opfa import OpfaPolicy
 
     root, calibration, _ = rig

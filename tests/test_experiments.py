@@ -61,6 +61,8 @@ def test_protocol_cells():
         assert not set(own) & set(cell.evaluation.regions)
     naive = [c for c in _transfer(cells) if c.condition == "naive_cotrain" and c.group == "lift"]
     assert {len(c.evaluation.training.demos) for c in naive} == {2}
+    alone = [c.evaluation for c in _transfer(cells) if c.condition == "wo_cotrain"]
+    assert alone and all([d.hand for d in e.training.demos] == [e.hand] for e in alone)  # its own policy
     few = protocols.fewshot(small, "lift", "inspire", "xhand")
     assert [c.group for c in _transfer(few) if c.condition == "opfa"] == [
         "1",
@@ -159,25 +161,22 @@ def test_report_of_perfect_cells(tmp_path):
 
 
 def test_spatial_experiment_toy_end_to_end_and_resume(tmp_path, capsys):
+    """OPFA only: the w/o co-training policies are the same jobs on per-hand datasets (protocol_cells)."""
     work, report = tmp_path / "work", tmp_path / "report"
     argv = [
         "experiment", "spatial", "--scale", "toy", "--tasks", "press_button", "--hands", "umi,inspire",
-        "--more-hands", "", "--conditions", "wo_cotrain,opfa", "--output-dir", str(work),
+        "--more-hands", "", "--conditions", "opfa", "--output-dir", str(work),
         "--report-dir", str(report), "--workers", "2", "--failure-episodes", "1",
     ]  # fmt: skip
     assert main(argv) == 0
     result = json.loads((report / "spatial_toy.json").read_text())
     rows = result["results"]
-    assert {(r["hand"], r["condition"]) for r in rows} == {
-        (h, c) for h in ("umi", "inspire") for c in ("wo_cotrain", "opfa")
-    }
+    assert {(r["hand"], r["condition"]) for r in rows} == {(h, "opfa") for h in ("umi", "inspire")}
     assert all(len(r["successes"]) == 2 and 0 <= r["ci95"][0] <= r["ci95"][1] <= 1 for r in rows)
     umi = next(r for r in rows if r["hand"] == "umi")
     assert set(umi["regions"]) == set(protocols.split_regions(2)[1])  # the other hand's regions
     inside = result["in_distribution"]  # one per trained policy and hand, where its demos are
-    assert sorted((e["condition"], e["hand"]) for e in inside) == sorted(
-        (c, h) for h in ("umi", "inspire") for c in ("wo_cotrain", "opfa")
-    )
+    assert sorted(e["hand"] for e in inside) == ["inspire", "umi"]
     assert all(0 <= e["successes"] <= e["episodes"] == 2 for e in inside)
     covered = protocols.split_regions(2)[0][: get_scale("toy").demos]  # its 2 demos reach 2 of its regions
     assert next(e for e in inside if e["hand"] == "umi")["regions"] == list(covered)
@@ -188,14 +187,14 @@ def test_spatial_experiment_toy_end_to_end_and_resume(tmp_path, capsys):
     assert "never touched the object (wrist)" in (report / "spatial_toy.md").read_text()
     assert (report / "spatial_toy.png").read_bytes()[:4] == b"\x89PNG"
     assert "| OPFA |" in (report / "spatial_toy.md").read_text()
-    assert "w/o co-training" in capsys.readouterr().out
+    assert "OPFA" in capsys.readouterr().out
 
     # resume: a lost evaluation is redone, nothing else
     checkpoints = sorted((work / "train").glob("*/checkpoints/last/pretrained_model/model.safetensors"))
-    assert len(checkpoints) == 3  # one w/o co-training policy per hand, one OPFA policy
+    assert len(checkpoints) == 1  # one OPFA policy of both hands
     stamps = [c.stat().st_mtime_ns for c in checkpoints]
     lost = sorted((work / "eval").glob("*.json"))[0]
-    assert len(list((work / "eval").glob("*.json"))) == 8
+    assert len(list((work / "eval").glob("*.json"))) == 4
     lost.unlink()
     assert main(argv) == 0
     assert lost.exists()
@@ -208,7 +207,7 @@ def test_spatial_experiment_toy_end_to_end_and_resume(tmp_path, capsys):
     from lerobot_opfa.features import OBS_HAND, OBS_POINTCLOUD
     from lerobot_opfa.policy.modeling_opfa import OpfaPolicy
 
-    opfa = next(c.parent for c in checkpoints if c.parts[-5].startswith("opfa"))
+    opfa = checkpoints[0].parent
     policy = OpfaPolicy.from_pretrained(opfa)
     pre, _ = make_pre_post_processors(policy.config, pretrained_path=str(opfa))
     observation = {

@@ -6,13 +6,11 @@ from __future__ import annotations
 import json
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
-from subprocesses import run_command
 
 from lerobot_opfa.galr.data import hand_counts, make_batch, masked_rmse, sample_batch
 from lerobot_opfa.galr.evaluate import evaluate
@@ -242,13 +240,8 @@ def test_resume_continues_from_the_same_step(tmp_path):
     assert all(torch.allclose(a[k], b[k], atol=1e-6) for k in a)
 
 
-def _cli(*args: str) -> subprocess.CompletedProcess:
-    exe = Path(sys.executable).parent / "lerobot-opfa"
-    return run_command([str(exe), *args], timeout=600)
-
-
 def _cli_here(capsys, *args: str) -> subprocess.CompletedProcess:
-    """`lerobot-opfa` run in this process (its pretraining runs as a command, above)."""
+    """`lerobot-opfa` run in this process (test_cli runs the installed command)."""
     from lerobot_opfa import cli
 
     code = cli.main(list(args))
@@ -258,8 +251,9 @@ def _cli_here(capsys, *args: str) -> subprocess.CompletedProcess:
 
 def test_cli_pretrain_eval_embed_decode(tmp_path, capsys):
     run = tmp_path / "galr"
-    result = _cli("galr", "pretrain", "--hands", "umi,inspire", "--steps", "3", "--batch-size", "4",
-                  "--validate-every", "3", "--output-dir", str(run), "--model", *TINY_ARGS)  # fmt: skip
+    pretrain = ["galr", "pretrain", "--hands", "umi,inspire", "--steps", "3", "--batch-size", "4",
+                "--validate-every", "3", "--output-dir", str(run), "--model", *TINY_ARGS]  # fmt: skip
+    result = _cli_here(capsys, *pretrain)
     assert result.returncode == 0, result.stderr[-2000:]
     assert (run / "model.safetensors").is_file() and (run / "checkpoints" / "step_0000003").is_dir()
 

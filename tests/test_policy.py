@@ -24,7 +24,7 @@ from lerobot.processor.converters import batch_to_transition, transition_to_batc
 from lerobot.utils.constants import OBS_ENV_STATE
 from lerobot.utils.feature_utils import dataset_to_policy_features
 from safetensors.torch import load_file, save_file
-from subprocesses import run_command
+from subprocesses import run_command, run_lerobot_here
 
 from lerobot_opfa import cli
 from lerobot_opfa.datasets import merge as merge_module
@@ -756,8 +756,8 @@ def test_stock_diffusion_in_galr_space_then_joint_io(data, tmp_path):
 # --- the stock CLIs ------------------------------------------------------------------------------------
 def test_lerobot_train_then_eval_every_hand(data, tmp_path, monkeypatch):
     """`lerobot-train` as a subprocess, with no GaLR flag (the merged dataset names the GaLR its latents came
-    from), then fine-tuning the checkpoint (LeRobot reconfigures its processors by name); `lerobot-eval`'s
-    entry point (in-process, same argv) runs an episode per hand."""
+    from), then fine-tuning the checkpoint (LeRobot reconfigures its processors by name) and `lerobot-eval`
+    (an episode per hand), their entry points run in this process."""
     from lerobot.scripts import lerobot_eval
 
     out = tmp_path / "train"
@@ -776,10 +776,11 @@ def test_lerobot_train_then_eval_every_hand(data, tmp_path, monkeypatch):
     policy = OpfaPolicy.from_pretrained(checkpoint)
     assert policy.config.embodiments == HANDS and policy.config.latent_dim == 8
     assert policy.config.galr_path == str((data / "galr").resolve())
-    finetune = [command[0], f"--policy.path={checkpoint}", *command[2:5], "--policy.push_to_hub=false"]
-    finetune += ["--steps=1", "--batch_size=4", "--num_workers=0", f"--output_dir={tmp_path / 'finetune'}"]
-    result = run_command(finetune, env=ENV, timeout=600)
-    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    finetune = [f"--policy.path={checkpoint}", *command[2:5], "--policy.push_to_hub=false", "--steps=1",
+                "--batch_size=4", "--num_workers=0", f"--output_dir={tmp_path / 'finetune'}"]  # fmt: skip
+    run_lerobot_here("lerobot_train", finetune, monkeypatch)
+    finetuned = tmp_path / "finetune" / "checkpoints" / "last" / "pretrained_model"
+    assert (finetuned / "model.safetensors").is_file()
     monkeypatch.setenv("MUJOCO_GL", "egl")
     for hand in HANDS:
         argv = [

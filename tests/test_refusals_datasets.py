@@ -8,7 +8,6 @@ import errno
 import gc
 import json
 import os
-import subprocess
 import sys
 from pathlib import Path
 
@@ -19,7 +18,7 @@ from lerobot.datasets.dataset_metadata import LeRobotDatasetMetadata
 from lerobot.datasets.dataset_writer import DatasetWriter
 from lerobot.utils.constants import ACTION, OBS_STATE
 from test_joint_maps import N_POINTS, robot_dataset, write_map
-from test_policy import ENV, make_policy, save_galr
+from test_policy import make_policy, save_galr
 
 from lerobot_opfa import cli
 from lerobot_opfa.datasets.io import atomic_directory, new_dataset, read_columns
@@ -28,8 +27,6 @@ from lerobot_opfa.datasets.layout import OPFA_META_FILE, opfa_record, read_layou
 from lerobot_opfa.datasets.synthetic import WRIST_NAMES, write_synthetic_dataset
 from lerobot_opfa.features import OBS_EMBODIMENT
 from lerobot_opfa.hands import load_hand
-
-EDIT_DATASET = Path(sys.executable).with_name("lerobot-edit-dataset")
 
 
 def _siblings(output: Path) -> list[str]:
@@ -100,10 +97,17 @@ def merged(tmp_path_factory) -> Path:
     return root
 
 
-def _delete_episodes(root: Path, output: Path, episodes: list[int]) -> subprocess.CompletedProcess:
-    command = [str(EDIT_DATASET), f"--repo_id=local/{root.name}", f"--root={root}", f"--new_root={output}",
-               "--operation.type=delete_episodes", f"--operation.episode_indices={episodes}"]  # fmt: skip
-    return subprocess.run(command, env=ENV, capture_output=True, text=True, timeout=300)
+def _delete_episodes(root: Path, output: Path, episodes: list[int]) -> None:
+    """LeRobot's `lerobot-edit-dataset --operation.type=delete_episodes`, its entry point run in this
+    process (its flags read from sys.argv)."""
+    from unittest import mock
+
+    from lerobot.scripts import lerobot_edit_dataset
+
+    argv = ["lerobot-edit-dataset", f"--repo_id=local/{root.name}", f"--root={root}", f"--new_root={output}",
+            "--operation.type=delete_episodes", f"--operation.episode_indices={episodes}"]  # fmt: skip
+    with mock.patch.object(sys, "argv", argv):
+        lerobot_edit_dataset.main()
 
 
 def test_the_record_survives_lerobot_edit_dataset(merged, tmp_path):
@@ -111,8 +115,7 @@ def test_the_record_survives_lerobot_edit_dataset(merged, tmp_path):
     stays, so the edited dataset still names the GaLR of its cached latents (and a clouds dataset its
     calibration)."""
     edited = tmp_path / "edited"
-    result = _delete_episodes(merged / "merged", edited, [1])
-    assert result.returncode == 0, result.stderr[-3000:]
+    _delete_episodes(merged / "merged", edited, [1])
     assert not (edited / OPFA_META_FILE).exists(), "LeRobot drops the plugin's file"
     record = json.loads((merged / "merged" / OPFA_META_FILE).read_text())
     assert opfa_record(edited) == record and record["galr_fingerprint"]
@@ -126,8 +129,7 @@ def test_a_merge_whose_record_is_gone_is_refused(merged, tmp_path):
     """A dataset merged before info.json kept the copy, then edited: its cached latents are of a GaLR
     nothing names any more; training would fall back to the default GaLR without a word."""
     old = tmp_path / "old"
-    result = _delete_episodes(merged / "merged", old, [0])
-    assert result.returncode == 0, result.stderr[-3000:]
+    _delete_episodes(merged / "merged", old, [0])
     info = json.loads((old / "meta" / "info.json").read_text())
     info["features"][OBS_STATE].pop("info", None)
     (old / "meta" / "info.json").write_text(json.dumps(info, indent=4))
@@ -150,10 +152,7 @@ def test_a_dataset_without_a_record_keeps_no_stale_copy(merged, tmp_path):
 def test_a_hand_whose_episodes_were_all_deleted_is_named_as_such(merged):
     """Deleting every episode of one hand from a merge leaves the hand listed without frames: the error
     says so, not that its episodes are too short."""
-    result = _delete_episodes(
-        merged / "merged", merged / "no_inspire", [2, 3]
-    )  # the merge's inspire episodes
-    assert result.returncode == 0, result.stderr[-3000:]
+    _delete_episodes(merged / "merged", merged / "no_inspire", [2, 3])  # the merge's inspire episodes
     with pytest.raises(ValueError, match="has no episode of hand 'inspire'") as error:
         make_policy(merged, "no_inspire", action_space="galr")
     assert "\n" not in str(error.value) and "delete_episodes" in str(error.value)

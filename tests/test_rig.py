@@ -17,6 +17,7 @@ import torch
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from subprocesses import run_command
 
+from lerobot_opfa import cli
 from lerobot_opfa.envs.config import OpfaEnvConfig
 from lerobot_opfa.experiments.failures import image_goal_scatter, object_following
 
@@ -90,12 +91,10 @@ def test_an_rgb_policy_trains_on_the_rigs_colour_camera_and_acts_in_lerobot_eval
     policy = {"type": "opfa", "action_space": "raw", "device": "cpu", "push_to_hub": "false", "horizon": 8,
               "down_dims": "[16,32]", "n_action_steps": 4, "visual_inputs": "rgb",
               "image_feature_dim": 8}  # fmt: skip
-    command = [sys.executable, "-m", "lerobot_opfa.cli", "train",
-               *(f"--policy.{k}={v}" for k, v in policy.items()), "--dataset.repo_id=local/rig",
-               f"--dataset.root={recorded / 'rig'}", "--steps=2", "--batch_size=2", "--save_freq=2",
-               f"--output_dir={tmp_path / 'train'}", "--wandb.enable=false"]  # fmt: skip
-    done = run_command(command, env=ENV, timeout=600)
-    assert done.returncode == 0, done.stderr[-3000:]
+    train = ["train", *(f"--policy.{k}={v}" for k, v in policy.items()), "--dataset.repo_id=local/rig",
+             f"--dataset.root={recorded / 'rig'}", "--steps=2", "--batch_size=2", "--save_freq=2",
+             f"--output_dir={tmp_path / 'train'}", "--wandb.enable=false"]  # fmt: skip
+    assert cli.main(train) == 0  # `lerobot-opfa train` in this process (LeRobot's loop; lerobot-eval below)
     checkpoint = tmp_path / "train" / "checkpoints" / "last" / "pretrained_model"
     config = json.loads((checkpoint / "config.json").read_text())
     assert "observation.pointcloud" not in config["input_features"]
@@ -159,6 +158,7 @@ def test_a_checkpoint_trained_on_the_rigs_depth_deploys_with_lerobot_rollout(rec
     assert done.returncode != 0
     last = done.stderr.strip().splitlines()[-1]
     assert "the 'umi' robot this policy was trained on has 7" in last and "12 entries" in last, last
+    assert last.startswith("error: ") and "Traceback" not in done.stderr, done.stderr[-3000:]
 
 
 def test_an_episode_shorter_than_the_tasks_step_budget_is_reported_and_late_success_does_not_count(

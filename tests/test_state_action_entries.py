@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 import torch
 from lerobot.utils.constants import ACTION, OBS_STATE
-from subprocesses import run_command
+from subprocesses import run_command, run_lerobot_here
 
 from lerobot_opfa.cli import main
 from lerobot_opfa.datasets.joint_map import JointMap, JointMapError
@@ -109,7 +109,10 @@ def test_a_stock_policys_latent_dataset_of_the_ee_delta_robot_keeps_each_keys_bo
     assert state[12:] == action[4:] and state[12] == "z0"  # the jaw's latent, read from each key's entry
 
 
-def test_lerobot_train_then_lerobot_eval_on_the_ee_delta_robot_with_no_renaming(ee_demos, tmp_path):
+def test_lerobot_train_then_lerobot_eval_on_the_ee_delta_robot_with_no_renaming(
+    ee_demos, tmp_path, monkeypatch
+):
+    """`lerobot-train` as a subprocess, then `lerobot-eval`'s entry point in this process."""
     bin_dir = Path(sys.executable).parent
     out = tmp_path / "train"
     train = run_command([
@@ -129,19 +132,19 @@ def test_lerobot_train_then_lerobot_eval_on_the_ee_delta_robot_with_no_renaming(
     assert config["action_body_names"] == ["dx", "dy", "dz", "dyaw"]
 
     evaluated = tmp_path / "eval"
-    result = run_command([
-        bin_dir / "lerobot-eval", f"--policy.path={checkpoint}", "--env.type=opfa", "--env.task=press_button",
+    run_lerobot_here("lerobot_eval", [
+        f"--policy.path={checkpoint}", "--env.type=opfa", "--env.task=press_button",
         "--env.hand=umi", "--env.control=ee_delta", "--env.regions=mid_center",
         "--env.pointcloud_source=geometry",
         f"--env.n_points={N_POINTS}", "--env.episode_length=6", "--eval.n_episodes=1", "--eval.batch_size=1",
         "--policy.device=cpu", f"--output_dir={evaluated}",
-    ], env=ENV, timeout=600)  # fmt: skip
-    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    ], monkeypatch)  # fmt: skip
     assert json.loads((evaluated / "eval_info.json").read_text())["overall"]["n_episodes"] == 1
 
 
 def test_ee_delta_control_of_a_dexterous_hand_is_one_line_naming_the_flag():
-    from lerobot_opfa.envs.config import FlagError, OpfaEnvConfig
+    from lerobot_opfa.envs.config import OpfaEnvConfig
+    from lerobot_opfa.flags import FlagError
 
     with pytest.raises(FlagError, match=r"`env.control`: control ee_delta drives a gripper .* 'leap' has 16"):
         OpfaEnvConfig(hand="leap", control="ee_delta")

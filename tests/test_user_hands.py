@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 import torch
 import yaml
-from subprocesses import run_command
+from subprocesses import run_command, run_lerobot_here
 
 from lerobot_opfa.cli import main
 from lerobot_opfa.datasets.layout import read_layout
@@ -142,10 +142,11 @@ def _lerobot(exe: str, *args: str) -> None:
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
 
 
-def test_user_hand_through_every_command(user_spec, tmp_path, capsys, request):
-    """check, cloud, demos, a GaLR that learns the hand (`--init`), merge, lerobot-train and lerobot-eval,
-    with nothing but the spec's path given once, to `sim demos`. The URDF hand trains in GaLR space, the MJCF
-    hand on raw joints (and in GaLR space in test_refusals_checkpoints' moved-checkpoint test)."""
+def test_user_hand_through_every_command(user_spec, tmp_path, capsys, request, monkeypatch):
+    """check, cloud, demos, a GaLR that learns the hand (`--init`), merge, lerobot-train (a subprocess) and
+    lerobot-eval (its entry point, here), with nothing but the spec's path given once, to `sim demos`. The
+    URDF hand trains in GaLR space, the MJCF hand on raw joints (and in GaLR space in
+    test_refusals_checkpoints' moved-checkpoint test)."""
     hand = load_hand(user_spec)
     code, out = _check(user_spec, capsys)
     assert code == 0 and "WARNING" not in out, out
@@ -187,11 +188,12 @@ def test_user_hand_through_every_command(user_spec, tmp_path, capsys, request):
     _lerobot("lerobot-train", "--policy.type=opfa", f"--policy.action_space={space}",
              f"--dataset.repo_id=local/{dataset.name}", f"--dataset.root={dataset}", *TINY_POLICY,
              f"--output_dir={out}")  # fmt: skip
-    _lerobot("lerobot-eval", f"--policy.path={out / 'checkpoints' / 'last' / 'pretrained_model'}",
-             "--policy.device=cpu", "--env.type=opfa", f"--env.hand={user_spec}",
-             "--env.task=press_button", "--env.n_points=32", "--env.episode_length=4",
-             "--eval.n_episodes=1", "--eval.batch_size=1",
-             f"--output_dir={tmp_path / f'eval_{space}'}")  # fmt: skip
+    run_lerobot_here("lerobot_eval", [
+        f"--policy.path={out / 'checkpoints' / 'last' / 'pretrained_model'}", "--policy.device=cpu",
+        "--env.type=opfa", f"--env.hand={user_spec}", "--env.task=press_button", "--env.n_points=32",
+        "--env.episode_length=4", "--eval.n_episodes=1", "--eval.batch_size=1",
+        f"--output_dir={tmp_path / f'eval_{space}'}",
+    ], monkeypatch)  # fmt: skip
     info = json.loads((tmp_path / f"eval_{space}" / "eval_info.json").read_text())
     assert info["overall"]["n_episodes"] == 1
 
