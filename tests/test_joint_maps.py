@@ -3,7 +3,6 @@ before the hand, observation-only entries; joint maps applied on the way in and 
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -15,8 +14,8 @@ from lerobot.policies.factory import make_pre_post_processors
 from lerobot.processor import TransitionKey, create_transition
 from lerobot.processor.converters import batch_to_transition
 from lerobot.utils.constants import ACTION, OBS_STATE
-from subprocesses import run_command
-from test_policy import ENV, batch_of, make_policy, save_galr
+from subprocesses import run_lerobot_here
+from test_policy import batch_of, make_policy, save_galr
 
 from lerobot_opfa.datasets.io import read_columns
 from lerobot_opfa.datasets.joint_map import JointMap, JointMapError
@@ -293,13 +292,14 @@ def test_recorded_units_beyond_the_hands_limits_are_refused_before_training(rigs
 
 
 def test_lerobot_train_on_a_robots_dataset_through_a_map_then_the_checkpoint_drives_that_robot(
-    rigs, tmp_path
+    rigs, tmp_path, monkeypatch
 ):
-    """`lerobot-train --policy.joint_map` on the arm + Inspire dataset as recorded (no renaming, no merge);
-    the checkpoint alone (no map file) turns the robot's observations into actions in its entries."""
+    """`lerobot-train --policy.joint_map` (its entry point, here) on the arm + Inspire dataset as recorded (no
+    renaming, no merge); the checkpoint alone (no map file) turns the robot's observations into actions in
+    its entries."""
     out = tmp_path / "train"
-    command = [
-        str(Path(sys.executable).parent / "lerobot-train"), "--policy.type=opfa", "--policy.action_space=raw",
+    flags = [
+        "--policy.type=opfa", "--policy.action_space=raw",
         f"--policy.joint_map={rigs / 'arm_inspire_map.yaml'}", "--dataset.repo_id=local/arm_inspire",
         f"--dataset.root={rigs / 'arm_inspire'}", "--policy.device=cpu", "--policy.push_to_hub=false",
         "--policy.down_dims=[16,32]", "--policy.horizon=8", "--policy.n_action_steps=4",
@@ -307,8 +307,7 @@ def test_lerobot_train_on_a_robots_dataset_through_a_map_then_the_checkpoint_dri
         "--steps=2", "--batch_size=4", "--save_freq=2", "--log_freq=1", "--num_workers=0",
         f"--output_dir={out}", "--wandb.enable=false",
     ]  # fmt: skip
-    result = run_command(command, env=ENV, timeout=600)
-    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    run_lerobot_here("lerobot_train", flags, monkeypatch)
     (rigs / "arm_inspire_map.yaml").rename(tmp_path / "moved.yaml")  # deployment needs no map file
     try:
         checkpoint = out / "checkpoints" / "last" / "pretrained_model"

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import torch
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
-from subprocesses import run_command
+from subprocesses import run_command, run_lerobot_here
 
 from lerobot_opfa import cli
 from lerobot_opfa.envs.config import OpfaEnvConfig
@@ -116,17 +116,17 @@ def test_an_rgb_policy_trains_on_the_rigs_colour_camera_and_acts_in_lerobot_eval
     assert scatter["goal_episodes"] == 3 and np.isfinite(scatter["goal_scatter_cm"]).all()
 
 
-def test_a_checkpoint_trained_on_the_rigs_depth_deploys_with_lerobot_rollout(recorded, tmp_path):
+def test_a_checkpoint_trained_on_the_rigs_depth_deploys_with_lerobot_rollout(recorded, tmp_path, monkeypatch):
+    """Trained by `lerobot-train`'s entry point here, deployed by `lerobot-rollout` subprocesses."""
     calibration = recorded / "calibration" / "opfa_sim_cameras.yaml"
     policy = {"type": "opfa", "action_space": "raw", "device": "cpu", "push_to_hub": "false", "horizon": 8,
               "down_dims": "[16,32]", "n_action_steps": 4, "pointcloud_widths": "[8,16]",
               "pointcloud_feature_dim": 8, "cloud_points": 64, "cameras": calibration}  # fmt: skip
-    done = lerobot(
-        "lerobot_train", *(f"--policy.{k}={v}" for k, v in policy.items()), "--dataset.repo_id=local/rig",
+    run_lerobot_here("lerobot_train", [
+        *(f"--policy.{k}={v}" for k, v in policy.items()), "--dataset.repo_id=local/rig",
         f"--dataset.root={recorded / 'rig'}", "--steps=2", "--batch_size=2", "--num_workers=0",
         "--save_freq=2", f"--output_dir={tmp_path / 'train'}", "--wandb.enable=false",
-    )  # fmt: skip
-    assert done.returncode == 0, done.stderr[-3000:]
+    ], monkeypatch)  # fmt: skip
     checkpoint = tmp_path / "train" / "checkpoints" / "last" / "pretrained_model"
     deploy = tmp_path / "deploy"
     common = [
