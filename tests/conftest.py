@@ -1,5 +1,6 @@
-"""Shared fixtures: the built-in hands, and user hands made from third-party models with meshes: a URDF
-(example-robot-data's Allegro) and an MJCF (gymnasium-robotics' Shadow hand), as their packages ship them."""
+"""Shared fixtures: the built-in hands, and user hands made from third-party models with meshes: URDFs
+(example-robot-data's Allegro, dexi-rs' Fourier hand) and an MJCF (gymnasium-robotics' Shadow hand), as
+their packages ship them."""
 
 from __future__ import annotations
 
@@ -99,6 +100,25 @@ def cad_like_allegro_spec(tmp_path: Path) -> Path:
     raw.update(name="cad_allegro", model=str(model))
     spec = model.parent / "spec.yaml"
     spec.write_text(yaml.safe_dump(raw, sort_keys=False))
+    return spec
+
+
+def dexi_rs_fourier() -> Path:
+    """The Fourier 6-DoF right hand URDF (with STL meshes) installed by the PyPI package dexi-rs."""
+    found = importlib.util.find_spec("dexi_rs")
+    if found is None:
+        pytest.fail("dexi-rs is not installed; install the [test] extra")
+    hands = Path(found.submodule_search_locations[0]) / "resources" / "assets" / "robots" / "hands"
+    return hands / "fourier_hand" / "base_urdf" / "fourier_right_hand_6dof.urdf"
+
+
+@pytest.fixture
+def user_fourier_spec(tmp_path: Path) -> Path:
+    spec = tmp_path / "user_fourier" / "spec.yaml"
+    spec.parent.mkdir()
+    spec.write_text(
+        (DATA / "user_fourier" / "spec.yaml").read_text().replace("MODEL_PATH", str(dexi_rs_fourier()))
+    )
     return spec
 
 

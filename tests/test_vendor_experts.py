@@ -1,6 +1,7 @@
 """Scripted experts on vendors' own hand models (issue 44, item 3): example-robot-data's Allegro URDF, the
-same URDF with visual meshes only (as CAD exports write it), and gymnasium-robotics' Shadow MJCF press the
-button and lift the can as the built-ins do; a failed episode says in one line which phase failed."""
+same URDF with visual meshes only (as CAD exports write it), gymnasium-robotics' Shadow MJCF and dexi-rs'
+Fourier 6-DoF URDF press the button and lift the can as the built-ins do; a failed episode says in one
+line which phase failed."""
 
 from __future__ import annotations
 
@@ -64,7 +65,14 @@ def expert_successes(task: str, hand: str) -> list[int]:
 
 @pytest.mark.parametrize("task", ["press_button", "lift"])
 @pytest.mark.parametrize(
-    "vendor", ["user_allegro_spec", "visual_only_allegro_spec", "cad_like_allegro_spec", "user_shadow_spec"]
+    "vendor",
+    [
+        "user_allegro_spec",
+        "visual_only_allegro_spec",
+        "cad_like_allegro_spec",
+        "user_shadow_spec",
+        "user_fourier_spec",
+    ],
 )
 def test_the_expert_succeeds_on_vendor_models(task, vendor, request):
     """Before the fixes the visual-only URDF collided with nothing (the hand sank through the button cap,
