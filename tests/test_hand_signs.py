@@ -245,6 +245,20 @@ def test_the_vendors_left_hand_under_a_right_hand_spec_is_refused(user_allegro_s
     assert "PROBLEM" not in capsys.readouterr().out
 
 
+def test_the_fourier_left_hand_under_its_right_hand_spec_is_refused_and_passes_as_a_left_hand(
+    user_fourier_spec, capsys
+):
+    """dexi-rs ships the Fourier hand's left model beside the right one, its names prefixed `L_`."""
+    text = re.sub(r"\bR_", "L_", user_fourier_spec.read_text().replace("_right_hand_", "_left_hand_"))
+    spec = user_fourier_spec.with_name("left.yaml")
+    spec.write_text(text)
+    assert main(["hands", "check", str(spec)]) == 1
+    out = capsys.readouterr().out
+    assert "PROBLEM: the model is a left hand" in out and "declare `side: left`" in out, out
+    assert main(["hands", "check", str(_edited(spec, lambda raw: raw.update(side="left")))]) == 0
+    assert "PROBLEM" not in capsys.readouterr().out
+
+
 def test_a_side_that_is_neither_is_an_error(spec):
     with pytest.raises(ValueError, match=r"field 'side': 'up' is not one of \['right', 'left'\]"):
         load_spec(_edited(spec, lambda raw: raw.update(side="up")))
