@@ -183,6 +183,7 @@ def test_a_truncated_model_file_through_lerobot_rollout_names_the_file(trained, 
     line = result.stderr.strip().splitlines()[-1]
     assert f"{weights} is damaged (cut short or not a safetensors file" in line, line
     assert "download the checkpoint again" in line
+    assert line.startswith("error: ") and "Traceback" not in result.stderr, result.stderr[-3000:]
 
 
 def test_an_rgb_checkpoint_from_before_image_goal_names_the_config_line_to_add(trained, tmp_path):
