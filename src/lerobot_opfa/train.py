@@ -67,17 +67,19 @@ def train(argv: list[str]) -> None:
         torch.set_num_threads(len(usable))
     _reuse_freed_memory()
     make = _in_memory(lerobot_train.make_train_eval_datasets)
-    # Three pieces of LeRobot 0.6.1 are swapped for this call only, each because LeRobot offers no seam:
+    # Three pieces of LeRobot 0.6.1 are swapped for this call only. LeRobot has no seam for any of them:
     with (
-        # `train(cfg)` calls the module's `make_train_eval_datasets` by name; it takes no dataset or
-        # factory, and datasets have no registry (`DatasetConfig` is a plain dataclass).
+        # No seam for the dataset: `train(cfg)` calls the module's `make_train_eval_datasets` by name, takes
+        # no dataset or factory, and datasets have no registry (`DatasetConfig` is a plain dataclass).
         mock.patch.object(lerobot_train, "make_train_eval_datasets", make),
-        # `parser.wrap()` catches only draccus's `DecodingError`; for a config's `__post_init__` error
-        # draccus prints a generic line and exits, hiding the cause, which `_parse_showing_cause` raises.
+        # No seam for parse errors: `parser.wrap()` calls `draccus.parse` itself and prints what it raises.
+        # For a `--policy.*` value that is draccus's "Could not decode the value into any of the given
+        # types" with the cause on a second line, for another config's ValueError only "Couldn't
+        # instantiate ..."; `_parse_showing_cause` raises the cause, which `cli.main` prints as one line.
         mock.patch.object(draccus, "parse", _parse_showing_cause(draccus.parse)),
-        # `parser.wrap()` would take a parsed config, but `TrainPipelineConfig.validate()` reads
-        # `--policy.path` / `--reward_model.path` from `sys.argv` itself (`parser.get_path_arg`), as does
-        # the wrapper's plugin loading (`--*.discover_packages_path`): there is no argv parameter.
+        # No seam for the arguments: `parser.wrap()` would take a parsed config, but
+        # `TrainPipelineConfig.validate()` reads `--policy.path` / `--reward_model.path` from `sys.argv`
+        # itself (`parser.get_path_arg`), as does the wrapper's plugin loading: there is no argv parameter.
         mock.patch.object(sys, "argv", ["lerobot-opfa train", *argv]),
     ):
         lerobot_train.main()
@@ -170,8 +172,8 @@ def _check_resumable(checkpoints: Path, name: str, flag: str) -> None:
 
 
 def _parse_showing_cause(parse):
-    """draccus.parse, raising a flag's real error (a config's `__post_init__` message) as a ValueError;
-    draccus itself prints only "Couldn't instantiate class OpfaConfig using the given arguments"."""
+    """draccus.parse, raising a flag's real error (a config's `__post_init__` message, or a `FlagError`'s
+    inside draccus's union message) as a ValueError of one line."""
     import draccus
 
     @functools.wraps(parse)
