@@ -758,8 +758,6 @@ def test_lerobot_train_then_eval_every_hand(data, tmp_path, monkeypatch):
     """`lerobot-train` as a subprocess, with no GaLR flag (the merged dataset names the GaLR its latents came
     from), then fine-tuning the checkpoint (LeRobot reconfigures its processors by name) and `lerobot-eval`
     (an episode per hand), their entry points run in this process."""
-    from lerobot.scripts import lerobot_eval
-
     out = tmp_path / "train"
     command = [
         str(Path(sys.executable).parent / "lerobot-train"), "--policy.type=opfa",
@@ -784,13 +782,12 @@ def test_lerobot_train_then_eval_every_hand(data, tmp_path, monkeypatch):
     monkeypatch.setenv("MUJOCO_GL", "egl")
     for hand in HANDS:
         argv = [
-            "lerobot-eval", f"--policy.path={checkpoint}", "--policy.device=cpu", "--env.type=opfa",
+            f"--policy.path={checkpoint}", "--policy.device=cpu", "--env.type=opfa",
             f"--env.hand={hand}", "--env.task=lift", "--env.n_points=32", "--env.pointcloud_source=geometry",
             "--env.episode_length=6", "--eval.n_episodes=1", "--eval.batch_size=1",
             f"--output_dir={tmp_path / f'eval_{hand}'}",
         ]  # fmt: skip
-        monkeypatch.setattr(sys, "argv", argv)
-        lerobot_eval.main()
+        run_lerobot_here("lerobot_eval", argv, monkeypatch)
         info = json.loads((tmp_path / f"eval_{hand}" / "eval_info.json").read_text())
         assert info["overall"]["n_episodes"] == 1
 

@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from subprocesses import run_command
+from subprocesses import run_command, run_lerobot_here
 
 from lerobot_opfa import cli
 from lerobot_opfa.datasets.synthetic import write_synthetic_dataset
@@ -134,12 +134,8 @@ def test_a_later_checkpoint_killed_while_saving_says_what_to_delete_and_resume_f
 def _lerobot_refused(script: str, argv: list[str], capsys, monkeypatch) -> list[str]:
     """The lines LeRobot's entry point `script` (run in this process: its flags are refused while they are
     parsed, before any work) ends with."""
-    import importlib
-
-    main = importlib.import_module(f"lerobot.scripts.{script}").main
-    monkeypatch.setattr(sys, "argv", [script, *argv])
     with pytest.raises(SystemExit) as exit_info:
-        main()
+        run_lerobot_here(script, argv, monkeypatch)
     err = capsys.readouterr().err
     assert exit_info.value.code not in (0, None) and "Traceback" not in err, err
     return err.strip().splitlines()

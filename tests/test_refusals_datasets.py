@@ -8,7 +8,6 @@ import errno
 import gc
 import json
 import os
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +16,7 @@ import torch
 from lerobot.datasets.dataset_metadata import LeRobotDatasetMetadata
 from lerobot.datasets.dataset_writer import DatasetWriter
 from lerobot.utils.constants import ACTION, OBS_STATE
+from subprocesses import run_lerobot_here
 from test_joint_maps import N_POINTS, robot_dataset, write_map
 from test_policy import make_policy, save_galr
 
@@ -99,15 +99,11 @@ def merged(tmp_path_factory) -> Path:
 
 def _delete_episodes(root: Path, output: Path, episodes: list[int]) -> None:
     """LeRobot's `lerobot-edit-dataset --operation.type=delete_episodes`, its entry point run in this
-    process (its flags read from sys.argv)."""
-    from unittest import mock
-
-    from lerobot.scripts import lerobot_edit_dataset
-
-    argv = ["lerobot-edit-dataset", f"--repo_id=local/{root.name}", f"--root={root}", f"--new_root={output}",
+    process."""
+    argv = [f"--repo_id=local/{root.name}", f"--root={root}", f"--new_root={output}",
             "--operation.type=delete_episodes", f"--operation.episode_indices={episodes}"]  # fmt: skip
-    with mock.patch.object(sys, "argv", argv):
-        lerobot_edit_dataset.main()
+    with pytest.MonkeyPatch.context() as monkeypatch:
+        run_lerobot_here("lerobot_edit_dataset", argv, monkeypatch)
 
 
 def test_the_record_survives_lerobot_edit_dataset(merged, tmp_path):
