@@ -71,7 +71,6 @@ def _show(args: argparse.Namespace) -> int:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     import numpy as np
-    from lerobot.utils.constants import OBS_ENV_STATE
 
     from lerobot_opfa.envs.env import OpfaSimEnv
     from lerobot_opfa.envs.experts import ScriptedExpert
@@ -105,14 +104,14 @@ def _show(args: argparse.Namespace) -> int:
 
         env.reset(seed=args.seed)
         expert, frames, success = ScriptedExpert(env, np.random.default_rng(args.seed)), [env.render()], False
-        states = [{OBS_ENV_STATE: env.task.env_state(env.scene, env.data)}]
+        states = [env.task.env_state(env.scene, env.data)]
         while not (expert.done or success):
             _, _, success, _, _ = env.step(expert.act())
             frames.append(env.render())
-            states.append({OBS_ENV_STATE: env.task.env_state(env.scene, env.data)})
+            states.append(env.task.env_state(env.scene, env.data))
         args.video.parent.mkdir(parents=True, exist_ok=True)
         write_video(args.video, frames, fps=env.metadata["render_fps"])
-        outcome = "succeeded" if success else f"failed: {failure_reason(env, states)}"
+        outcome = "succeeded" if success else f"failed: {failure_reason(env, np.stack(states))}"
         print(f"{args.video}: {len(frames)} frames, expert {outcome}")
     env.close()
     return 0

@@ -119,15 +119,16 @@ def record_demos(
     return LeRobotDatasetMetadata(repo_id or _repo_id(env), root=output_dir)
 
 
-def failure_reason(env: OpfaSimEnv, frames: list[dict]) -> str:
-    """Why a failed expert episode (its recorded frames) failed, in one line naming the phase."""
+def failure_reason(env: OpfaSimEnv, env_states: np.ndarray) -> str:
+    """Why a failed expert episode (its object states, one row a step) failed, in one line naming the
+    phase."""
     model, hand = env.model, env.scene.hand_geoms
     if not (model.geom_contype[hand] | model.geom_conaffinity[hand]).any():
         return (
             "reach: the hand has no collision geometry and passes through objects; give its model collision "
             "shapes (URDF <collision>, MJCF geoms with contype or conaffinity)"
         )
-    return env.task.failure(np.stack([frame[OBS_ENV_STATE] for frame in frames]))
+    return env.task.failure(env_states)
 
 
 def _repo_id(env: OpfaSimEnv) -> str:
@@ -146,7 +147,7 @@ def _record(env: OpfaSimEnv, episodes: int, dataset, region_names: list[str], se
             frames, success = expert_episode(env, episode_seed, region)
             if not success:
                 if frames:
-                    reason = failure_reason(env, frames)
+                    reason = failure_reason(env, np.stack([frame[OBS_ENV_STATE] for frame in frames]))
                     logger.warning("expert failed (seed %d, region %s): %s", episode_seed, region, reason)
                 continue
             for frame in frames:
