@@ -122,6 +122,24 @@ def user_fourier_spec(tmp_path: Path) -> Path:
     return spec
 
 
+def orca_arm_urdf() -> Path:
+    """The bimanual OpenArm URDF with two ORCA hands (STL meshes) installed by the PyPI package orca_arm."""
+    found = importlib.util.find_spec("orca_arm")
+    if found is None:
+        pytest.fail("orca_arm is not installed; install the [test] extra")
+    return Path(found.submodule_search_locations[0]) / "orcabot.urdf"
+
+
+@pytest.fixture
+def user_orca_spec(tmp_path: Path) -> Path:
+    spec = tmp_path / "user_orca" / "spec.yaml"
+    spec.parent.mkdir()
+    spec.write_text(
+        (DATA / "user_orca" / "spec.yaml").read_text().replace("MODEL_PATH", str(orca_arm_urdf()))
+    )
+    return spec
+
+
 def gymnasium_robotics_assets() -> Path:
     found = importlib.util.find_spec("gymnasium_robotics")
     if found is None:

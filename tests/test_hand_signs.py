@@ -15,15 +15,24 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from conftest import BUILTIN_HANDS, example_robot_data_allegro
+from conftest import BUILTIN_HANDS, example_robot_data_allegro, orca_arm_urdf
 
 from lerobot_opfa.cli import main
 from lerobot_opfa.hands import frame, load_hand, load_spec
 from lerobot_opfa.hands.registry import builtin_hands
+from lerobot_opfa.hands.spec import SIDES
 from lerobot_opfa.hands.validate import frame_report
 
 HANDS = [name for name in BUILTIN_HANDS if load_spec(name).kind == "hand"]
-VENDORS = ["user_allegro_spec", "user_shadow_spec", "cad_like_allegro_spec", "user_fourier_spec"]
+VENDORS = [
+    *(
+        "user_allegro_spec",
+        "user_shadow_spec",
+        "cad_like_allegro_spec",
+        "user_fourier_spec",
+        "user_orca_spec",
+    ),
+]
 
 
 @pytest.fixture(params=HANDS + VENDORS)
@@ -32,14 +41,18 @@ def spec(request, tmp_path) -> Path:
     own), or a vendor model's as the tests' data gives it, without its finger labels: a vendor's spec names
     its joints and, where the model holds more than the hand, what is not the hand (`null`)."""
     if request.param in VENDORS:
-        labelled = request.getfixturevalue(request.param)
-        raw = yaml.safe_load(labelled.read_text())
-        raw["links"] = {link: label for link, label in raw.pop("links", {}).items() if label is None}
-        return _write(labelled, {k: v for k, v in raw.items() if v or k != "links"})
+        return _unlabelled(request.getfixturevalue(request.param))
     source = builtin_hands()[request.param]
     raw = yaml.safe_load(source.read_text())
     raw.update(name=f"my_{raw['name']}", model=str(source.parent / raw["model"]))
     return _write(tmp_path / request.param / "spec.yaml", raw)
+
+
+def _unlabelled(labelled: Path) -> Path:
+    """The vendor spec without its finger labels, keeping `null` (not the hand)."""
+    raw = yaml.safe_load(labelled.read_text())
+    raw["links"] = {link: label for link, label in raw.pop("links", {}).items() if label is None}
+    return _write(labelled, {k: v for k, v in raw.items() if v or k != "links"})
 
 
 def _write(path: Path, raw: dict) -> Path:
@@ -257,6 +270,53 @@ def test_the_fourier_left_hand_under_its_right_hand_spec_is_refused_and_passes_a
     assert "PROBLEM: the model is a left hand" in out and "declare `side: left`" in out, out
     assert main(["hands", "check", str(_edited(spec, lambda raw: raw.update(side="left")))]) == 0
     assert "PROBLEM" not in capsys.readouterr().out
+
+
+def test_the_orca_left_hand_under_its_right_hand_spec_is_refused_and_passes_as_a_left_hand(
+    user_orca_spec, capsys
+):
+    """orca_arm's robot carries a left ORCA hand too: the right spec's joints and root renamed to the left
+    hand's (the export names them differently, so by their place in the file) is the mirror image."""
+    joints = [j for j in ET.parse(orca_arm_urdf()).getroot().iter("joint") if j.get("type") == "revolute"]
+    right, left = ([j for j in joints if j.get("name").startswith(f"orcahand_{side}_")] for side in SIDES)
+    names = {}
+    for ours, theirs in zip(right, left, strict=True):
+        names[ours.get("name")] = theirs.get("name")
+        names[ours.find("child").get("link")] = theirs.find("child").get("link")
+    text = re.sub(
+        r"orcahand_right_[\w-]+", lambda m: names.get(m.group(0), m.group(0)), user_orca_spec.read_text()
+    )
+    spec = user_orca_spec.with_name("left.yaml")
+    spec.write_text(text)
+    assert main(["hands", "check", str(spec)]) == 1
+    out = capsys.readouterr().out
+    assert "PROBLEM: the model is a left hand" in out and "declare `side: left`" in out, out
+    assert main(["hands", "check", str(_edited(spec, lambda raw: raw.update(side="left")))]) == 0
+    assert "PROBLEM" not in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("vendor", VENDORS)
+def test_two_fingers_named_as_each_other_are_refused(vendor, request):
+    """The ORCA export names the middle and ring fingers' parts alike (`M-AP`, `M-PP`): a spec giving the
+    middle finger's joints the ring's universal names, and the ring's the middle's, labels the links by them
+    and would otherwise pass."""
+    spec = _unlabelled(request.getfixturevalue(vendor))
+
+    def swap(universal: str) -> str:
+        finger, rest = universal.split("_", 1)
+        return "_".join([{"middle": "ring", "ring": "middle"}.get(finger, finger), rest])
+
+    def swap_all(raw: dict) -> None:
+        for joint, entry in raw["joints"].items():
+            if isinstance(entry, dict):
+                entry["universal"] = swap(entry["universal"])
+            else:
+                raw["joints"][joint] = swap(entry)
+
+    swapped = _edited(spec, swap_all)
+    problems = frame_report(load_hand(swapped))[2]
+    assert any("the fingertips lie across the palm as index, ring, middle" in p for p in problems), problems
+    assert frame_report(load_hand(spec))[2] == []
 
 
 def test_a_side_that_is_neither_is_an_error(spec):

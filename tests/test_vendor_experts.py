@@ -1,7 +1,7 @@
 """Scripted experts on vendors' own hand models (issue 44, item 3): example-robot-data's Allegro URDF, the
-same URDF with visual meshes only (as CAD exports write it), gymnasium-robotics' Shadow MJCF and dexi-rs'
-Fourier 6-DoF URDF press the button and lift the can as the built-ins do; a failed episode says in one
-line which phase failed."""
+same URDF with visual meshes only (as CAD exports write it), gymnasium-robotics' Shadow MJCF, dexi-rs'
+Fourier 6-DoF URDF and orca_arm's ORCA hand (cut out of a bimanual robot's URDF) press the button and lift
+the can as the built-ins do; a failed episode says in one line which phase failed."""
 
 from __future__ import annotations
 
@@ -72,6 +72,7 @@ def expert_successes(task: str, hand: str) -> list[int]:
         "cad_like_allegro_spec",
         "user_shadow_spec",
         "user_fourier_spec",
+        "user_orca_spec",
     ],
 )
 def test_the_expert_succeeds_on_vendor_models(task, vendor, request):

@@ -59,6 +59,9 @@ class HandFrame:
     """Metres the hand reaches behind the origin (along -z)."""
     wrist: np.ndarray
     """Where the origin belongs: behind the palm's centre, level with the back end of the hand."""
+    across: tuple[int, ...] = ()
+    """The fingers other than the thumb in the order their tips lie across the palm, from the thumb's side
+    (from -x where there is no thumb); empty where the palm is not told."""
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
@@ -129,17 +132,26 @@ def measure(hand: HandModel) -> HandFrame:
     if THUMB in fingers:
         across = (root_at[fingers.index(THUMB)] - root_at[others].mean(0)) @ np.cross(palm, point)
         side = None if abs(across) < THUMB_CLEAR else "right" if across < 0 else "left"
+    across_palm = tips[others] @ np.cross(palm, point) * (-1.0 if side == "left" else 1.0)
+    across = tuple(fingers[others[i]] for i in np.argsort(across_palm))
     fingertips = tips[others].mean(0)
     flexion = {}
     for j, joint, i in flexions:
         target = palm if fingers[i] != THUMB else _unit(fingertips - tips[i])
         flexion[joint] = float(_unit(float(hand.universal_sign[j]) * rate[j, i]) @ target)
-    return HandFrame(palm_faces=palm, side=side, flexion=flexion, **measured)
+    return HandFrame(palm_faces=palm, side=side, across=across, flexion=flexion, **measured)
 
 
 def signs_to_flip(frame: HandFrame) -> list[str]:
     """Flexion joints whose universal sense carries the fingertip away from the palm (the fingertips)."""
     return [joint for joint, cosine in frame.flexion.items() if cosine < -CLEAR]
+
+
+def fingers_out_of_order(frame: HandFrame) -> bool:
+    """Whether the fingers' tips lie across the palm in another order than index, middle, ring, little
+    from the thumb's side (or, without a thumb, either way): two fingers' joints named the other's."""
+    order = list(frame.across)
+    return order != sorted(order) and (frame.side is not None or order != sorted(order, reverse=True))
 
 
 def unclear_flexions(frame: HandFrame) -> list[str]:

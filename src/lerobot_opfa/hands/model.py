@@ -75,7 +75,7 @@ class HandModel:
         self, spec: HandSpec, device: torch.device | str = "cpu", dtype: torch.dtype = torch.float32
     ):
         try:
-            self.model_file = load_model_file(spec.model_path)
+            self.model_file = load_model_file(spec.model_path, spec.root)
         except ValueError as err:
             raise HandSpecError(spec.path, "model", str(err)) from err
         spec.check_joints(self.model_file.joint_names)

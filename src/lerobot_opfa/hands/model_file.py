@@ -1,7 +1,8 @@
 """A URDF or MJCF file read once: its pytorch-kinematics chain, link meshes and a MuJoCo-ready XML.
 
 Both formats end up in the same three forms, so everything downstream (FK, point clouds, simulation)
-treats a user's model exactly like a built-in one.
+treats a user's model exactly like a built-in one. A file that holds more than the hand (an arm, a body, a
+second hand) is cut to the subtree below the hand's root link first, so the rest is never loaded.
 """
 
 from __future__ import annotations
@@ -45,11 +46,13 @@ class ModelFile:
         return self.chain.get_link_names()
 
 
-def load_model_file(path: Path) -> ModelFile:
+def load_model_file(path: Path, root: str | None = None) -> ModelFile:
+    """The model in `path`, or only the subtree below its link or body `root`, whose frame becomes the
+    model's root frame."""
     if not path.is_file():
         raise ModelFileError(f"{path}: model file not found")
     try:
-        return _load_urdf(path) if path.suffix.lower() == ".urdf" else _load_mjcf(path)
+        return _load_urdf(path, root) if path.suffix.lower() == ".urdf" else _load_mjcf(path, root)
     except ModelFileError:
         raise
     except Exception as err:  # parsers raise many types; all mean "this file is not a usable model"
@@ -58,12 +61,46 @@ def load_model_file(path: Path) -> ModelFile:
         ) from err
 
 
-def _load_urdf(path: Path) -> ModelFile:
-    text = path.read_bytes()
-    robot = yourdfpy.URDF.load(str(path), build_scene_graph=False, load_meshes=False)
+def _load_urdf(path: Path, root: str | None) -> ModelFile:
+    text = path.read_bytes() if root is None else _urdf_subtree(path, root)
+    robot = yourdfpy.URDF.load(io.BytesIO(text), build_scene_graph=False, load_meshes=False)
     chain = pk.build_chain_from_urdf(text)
     xml, assets = _urdf_for_mujoco(text, path)
     return ModelFile(path, chain, urdf_link_meshes(robot, path), xml, assets)
+
+
+def _urdf_subtree(path: Path, root: str) -> bytes:
+    """The URDF cut to `root` and the links and joints below it; every other element that names a link
+    or joint left out (transmissions, simulator extensions) goes with them."""
+    tree = ET.parse(path).getroot()
+    links = {link.get("name") for link in tree.findall("link")}
+    if root not in links:
+        raise ModelFileError(f"{path}: no link '{root}' (the spec's `root`); its links are {sorted(links)}")
+    children: dict[str, list[ET.Element]] = {}
+    for joint in tree.findall("joint"):
+        children.setdefault(joint.find("parent").get("link"), []).append(joint)
+    kept_links, kept_joints, pending = {root}, set(), [root]
+    while pending:
+        for joint in children.get(pending.pop(), []):
+            kept_joints.add(joint.get("name"))
+            kept_links.add(joint.find("child").get("link"))
+            pending.append(joint.find("child").get("link"))
+    for element in list(tree):
+        keep = {"link": kept_links, "joint": kept_joints}.get(element.tag)
+        if (
+            keep is not None
+            and element.get("name") not in keep
+            or element.tag not in ("link", "joint", "material")
+        ):
+            tree.remove(element)
+    for joint in tree.findall("joint"):
+        mimic = joint.find("mimic")
+        if mimic is not None and mimic.get("joint") not in kept_joints:
+            raise ModelFileError(
+                f"{path}: joint '{joint.get('name')}' below '{root}' mimics '{mimic.get('joint')}', which is "
+                "not below it; take a root above both"
+            )
+    return ET.tostring(tree, encoding="utf-8")
 
 
 def _urdf_for_mujoco(text: bytes, path: Path) -> tuple[str, dict[str, bytes]]:
@@ -105,7 +142,7 @@ class _JointTypes(dict):
         return super().__getitem__(int(key))
 
 
-def _load_mjcf(path: Path) -> ModelFile:
+def _load_mjcf(path: Path, root_body: str | None) -> ModelFile:
     root = ET.parse(path).getroot()
     if root.tag != "mujoco":
         include = f'<include file="{path.name}"/>'
@@ -118,13 +155,48 @@ def _load_mjcf(path: Path) -> ModelFile:
         )
     if not isinstance(pk.mjcf.JOINT_TYPE_MAP, _JointTypes):
         pk.mjcf.JOINT_TYPE_MAP = _JointTypes({int(k): v for k, v in pk.mjcf.JOINT_TYPE_MAP.items()})
-    model = mujoco.MjModel.from_xml_path(str(path))
     spec = mujoco.MjSpec.from_file(str(path))
-    xml = spec.to_xml()
+    xml = spec.to_xml() if root_body is None else _mjcf_subtree(spec.to_xml(), root_body, path)
+    if root_body is not None:
+        spec = mujoco.MjSpec.from_string(xml)
     assets = {}
     for mesh in spec.meshes:
         if mesh.file:
             file = (path.parent / (spec.meshdir or "") / mesh.file).resolve()
             assets[mesh.file] = file.read_bytes()
+    model = mujoco.MjModel.from_xml_string(xml, assets)
     chain = pk.build_chain_from_mjcf(xml, assets=assets)
     return ModelFile(path, chain, mjcf_link_meshes(model), xml, assets)
+
+
+def _mjcf_subtree(xml: str, root: str, path: Path) -> str:
+    """The model cut to the body `root` and the bodies below it, `root` fixed at the world's origin.
+    Actuators, tendons, equalities, contact pairs, sensors and keyframes go: they may name what was cut,
+    and the simulated hand replaces the hand's own from its spec (`mujoco_model`)."""
+    model = ET.fromstring(xml)
+    worldbody = model.find("worldbody")
+    parents = {child: parent for parent in worldbody.iter() for child in parent}
+    body = next((b for b in worldbody.iter("body") if b.get("name") == root), None)
+    if body is None:
+        bodies = [b.get("name") for b in worldbody.iter("body")]
+        raise ModelFileError(f"{path}: no body '{root}' (the spec's `root`); its bodies are {bodies}")
+    ancestor = parents.get(body)
+    while body.get("childclass") is None and ancestor is not None and ancestor is not worldbody:
+        if ancestor.get("childclass") is not None:
+            body.set("childclass", ancestor.get("childclass"))
+        ancestor = parents.get(ancestor)
+    for key in ("pos", "quat", "euler", "axisangle", "xyaxes", "zaxis"):
+        body.attrib.pop(key, None)
+    for joint in body.findall("joint") + body.findall("freejoint"):  # what moved it in the model it left
+        body.remove(joint)
+    worldbody.clear()
+    worldbody.append(body)
+    for tag in ("actuator", "tendon", "equality", "contact", "sensor", "keyframe"):
+        for section in model.findall(tag):
+            model.remove(section)
+    used = {geom.get("mesh") for geom in body.iter("geom")}
+    for asset in model.findall("asset"):
+        for mesh in asset.findall("mesh"):
+            if mesh.get("name") not in used:
+                asset.remove(mesh)
+    return ET.tostring(model, encoding="unicode")

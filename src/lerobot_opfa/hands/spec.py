@@ -78,6 +78,9 @@ class HandSpec:
     """Finger u -> its first model joint or link, where the kinematic tree cannot tell (a gripper's jaws)."""
     side: str = "right"
     """Which hand the model is; `hands check` compares it with the side the thumb is on."""
+    root: str | None = None
+    """The model's link (URDF) or body (MJCF) the hand hangs from, where the file holds more than the hand
+    (an arm, a second hand): only the subtree below it is loaded, its frame the model's root frame."""
 
     @property
     def actuated_joints(self) -> list[str]:
@@ -153,6 +156,9 @@ class HandSpec:
         base = _parse_base(_mapping(raw, "base", path), path)
         finger_roots = _parse_fingers(_mapping(raw, "fingers", path), path)
         description = str(raw.get("description", ""))
+        root = raw.get("root")
+        if root is not None and not isinstance(root, str):
+            raise HandSpecError(path, "root", f"expected the name of the hand's root link, got {root!r}")
         return cls(
             path,
             name,
@@ -169,6 +175,7 @@ class HandSpec:
             base,
             finger_roots,
             side,
+            root,
         )
 
     def check_joints(self, joint_names: list[str]) -> None:
@@ -224,7 +231,7 @@ class HandSpec:
 
 
 FIELDS = (
-    *("name", "kind", "side", "model", "description", "base"),
+    *("name", "kind", "side", "model", "root", "description", "base"),
     *("joints", "couplings", "fixed", "fingers", "links", "poses"),
 )
 

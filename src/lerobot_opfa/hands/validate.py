@@ -136,6 +136,12 @@ def frame_report(hand: HandModel) -> tuple[list[str], list[str], list[str]]:
                 f"+z), the spec a {hand.spec.side} one: use the vendor's {hand.spec.side}-hand model, or "
                 f"declare `side: {measured.side}`"
             )
+    if frame.fingers_out_of_order(measured):
+        order = ", ".join(FINGERS[u] for u in measured.across)
+        problems.append(
+            f"the fingertips lie across the palm as {order} from the thumb's side, not in the order index, "
+            "middle, ring, little: the joints in `joints` give some fingers another finger's universal names"
+        )
     if measured.flexion:
         cosines: dict[int, list[str]] = {}
         for joint, cosine in measured.flexion.items():
