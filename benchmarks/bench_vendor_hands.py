@@ -4,10 +4,11 @@ that knows the hand.
     HF_HUB_OFFLINE=1 MUJOCO_GL=egl OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_vendor_hands.py \
         [--out outputs/bench_vendor_hands]
 
-Four vendor models, each read through a spec that names its actuated joints (and, where the model holds more
-than the hand, the links that are not the hand), with no `links` table: example-robot-data's Allegro URDF,
-gymnasium-robotics' Shadow MJCF and dexi-rs' Fourier 6-DoF URDF (all in the [test] extra), and the Shadow URDF
-in the genesis-world wheel (fetched with `pip download --no-deps`, not installed). Per hand: the spec's lines,
+Five vendor models, each read through a spec that names its actuated joints (and, where the model holds more
+than the hand, its root link or the links that are not the hand), with no `links` table: example-robot-data's
+Allegro URDF, gymnasium-robotics' Shadow MJCF, dexi-rs' Fourier 6-DoF URDF and the ORCA hand in orca_arm's
+bimanual robot URDF (all in the [test] extra), and the Shadow URDF in the genesis-world wheel (fetched with
+`pip download --no-deps`, not installed). Per hand: the spec's lines,
 `hands check` (its warnings), `sim demos` of `press_button` and `lift` (20 episodes each, `mid_center`:
 successes of attempts and wall minutes), and `galr pretrain --init default --hands +SPEC` (1100 steps, as
 bench_galr_add_hand.py) with the new hand's joint RMSE. Every step is skipped when its output exists.
@@ -143,11 +144,20 @@ def dexi_fourier(folder: Path) -> Path:
     return folder / "spec.yaml"
 
 
+def orca_right(folder: Path) -> Path:
+    urdf = Path(importlib.util.find_spec("orca_arm").submodule_search_locations[0]) / "orcabot.urdf"
+    text = (ROOT / "tests" / "data" / "user_orca" / "spec.yaml").read_text().replace("MODEL_PATH", str(urdf))
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "spec.yaml").write_text(text)
+    return folder / "spec.yaml"
+
+
 HANDS = {
     "erd_allegro": erd_allegro,
     "gym_shadow": gym_shadow,
     "genesis_shadow": genesis_shadow,
     "dexi_fourier": dexi_fourier,
+    "orca_right": orca_right,
 }
 
 
