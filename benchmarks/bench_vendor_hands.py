@@ -220,7 +220,7 @@ def plot(results: list[dict], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(6, 3.2))
+    fig, ax = plt.subplots(figsize=(6, 3.6))
     names = [r["hand"] for r in results]
     parts = [("press_button", lambda r: r["press_button"]["minutes"]),
              ("lift", lambda r: r["lift"]["minutes"]),
@@ -234,7 +234,7 @@ def plot(results: list[dict], path: Path) -> None:
         ax.text(left[i], i, f"  {r['spec_lines']} spec lines", va="center", fontsize=8)
     ax.set_xlabel("wall minutes on 2 CPU cores (demos: 20 episodes each)")
     ax.set_xlim(0, max(left) * 1.35)
-    ax.legend(fontsize=8, loc="upper right")
+    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.22), ncol=3)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
 
