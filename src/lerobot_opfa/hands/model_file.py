@@ -120,9 +120,7 @@ def _urdf_for_mujoco(text: bytes, path: Path) -> tuple[str, dict[str, bytes]]:
         filename = mesh.get("filename")
         if filename not in names:
             names[filename] = f"{len(names)}_{Path(filename).stem}.stl"  # MuJoCo's messages name the asset
-            buffer = io.BytesIO()
-            trimesh.load(resolve_urdf_mesh(filename, path), force="mesh").export(buffer, file_type="stl")
-            assets[names[filename]] = buffer.getvalue()
+            assets[names[filename]] = _binary_stl(resolve_urdf_mesh(filename, path))
         mesh.set("filename", names[filename])
     for old in root.findall("mujoco"):
         root.remove(old)
@@ -132,6 +130,18 @@ def _urdf_for_mujoco(text: bytes, path: Path) -> tuple[str, dict[str, bytes]]:
         boundmass=str(BOUND_MASS), boundinertia=str(BOUND_INERTIA),
     )  # fmt: skip
     return ET.tostring(root, encoding="unicode"), assets
+
+
+def _binary_stl(file: Path) -> bytes:
+    """The mesh as binary STL, the one mesh format MuJoCo reads of those URDFs use: a binary STL file as it
+    is (its triangle count fits its size), anything else (ASCII STL, DAE, OBJ, PLY) converted."""
+    data = file.read_bytes()
+    binary = len(data) >= 84 and len(data) == 84 + 50 * int.from_bytes(data[80:84], "little")
+    if binary and file.suffix.lower() == ".stl":
+        return data
+    buffer = io.BytesIO()
+    trimesh.load(file, force="mesh").export(buffer, file_type="stl")
+    return buffer.getvalue()
 
 
 class _JointTypes(dict):
