@@ -94,21 +94,26 @@ def without_link_labels(text: str) -> str:
     return "\n".join(out) + "\n"
 
 
-def erd_allegro(folder: Path) -> Path:
-    share = Path(sysconfig.get_paths()["purelib"]) / "cmeel.prefix" / "share" / "example-robot-data"
-    urdf = share / "robots" / "allegro_hand_description" / "urdf" / "allegro_right_hand.urdf"
-    text = (
-        (ROOT / "tests" / "data" / "user_allegro" / "spec.yaml").read_text().replace("MODEL_PATH", str(urdf))
-    )
+def spec_from_test_data(folder: Path, name: str, model: Path) -> Path:
+    """tests/data/NAME/spec.yaml with `model` filled in and no finger labels, written to `folder`."""
+    text = (ROOT / "tests" / "data" / name / "spec.yaml").read_text().replace("MODEL_PATH", str(model))
     folder.mkdir(parents=True, exist_ok=True)
     (folder / "spec.yaml").write_text(without_link_labels(text))
     return folder / "spec.yaml"
 
 
+def package_folder(module: str) -> Path:
+    return Path(importlib.util.find_spec(module).submodule_search_locations[0])
+
+
+def erd_allegro(folder: Path) -> Path:
+    share = Path(sysconfig.get_paths()["purelib"]) / "cmeel.prefix" / "share" / "example-robot-data"
+    urdf = share / "robots" / "allegro_hand_description" / "urdf" / "allegro_right_hand.urdf"
+    return spec_from_test_data(folder, "user_allegro", urdf)
+
+
 def gym_shadow(folder: Path) -> Path:
-    assets = (
-        Path(importlib.util.find_spec("gymnasium_robotics").submodule_search_locations[0]) / "envs" / "assets"
-    )
+    assets = package_folder("gymnasium_robotics") / "envs" / "assets"
     shutil.copytree(assets / "hand", folder / "assets" / "hand", dirs_exist_ok=True)
     shutil.copytree(assets / "stls" / "hand", folder / "assets" / "stls" / "hand", dirs_exist_ok=True)
     shutil.copy(ROOT / "tests" / "data" / "user_shadow_mjcf" / "shadow_hand.xml", folder / "assets" / "hand")
@@ -135,21 +140,14 @@ def genesis_shadow(folder: Path) -> Path:
 
 
 def dexi_fourier(folder: Path) -> Path:
-    assets = Path(importlib.util.find_spec("dexi_rs").submodule_search_locations[0]) / "resources" / "assets"
-    urdf = assets / "robots" / "hands" / "fourier_hand" / "base_urdf" / "fourier_right_hand_6dof.urdf"
-    text = (ROOT / "tests" / "data" / "user_fourier" / "spec.yaml").read_text()
-    text = text.replace("MODEL_PATH", str(urdf))
-    folder.mkdir(parents=True, exist_ok=True)
-    (folder / "spec.yaml").write_text(text)
-    return folder / "spec.yaml"
+    hands = package_folder("dexi_rs") / "resources" / "assets" / "robots" / "hands"
+    return spec_from_test_data(
+        folder, "user_fourier", hands / "fourier_hand" / "base_urdf" / "fourier_right_hand_6dof.urdf"
+    )
 
 
 def orca_right(folder: Path) -> Path:
-    urdf = Path(importlib.util.find_spec("orca_arm").submodule_search_locations[0]) / "orcabot.urdf"
-    text = (ROOT / "tests" / "data" / "user_orca" / "spec.yaml").read_text().replace("MODEL_PATH", str(urdf))
-    folder.mkdir(parents=True, exist_ok=True)
-    (folder / "spec.yaml").write_text(text)
-    return folder / "spec.yaml"
+    return spec_from_test_data(folder, "user_orca", package_folder("orca_arm") / "orcabot.urdf")
 
 
 HANDS = {

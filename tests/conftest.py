@@ -68,23 +68,33 @@ def example_robot_data_allegro() -> Path:
     return urdf
 
 
+def vendor_spec(tmp_path: Path, name: str, model: Path) -> Path:
+    """tests/data/NAME/spec.yaml with the vendor's installed model file as its `model`, in a folder of its
+    own (to be edited by the test)."""
+    spec = tmp_path / name / "spec.yaml"
+    spec.parent.mkdir()
+    spec.write_text((DATA / name / "spec.yaml").read_text().replace("MODEL_PATH", str(model)))
+    return spec
+
+
+def installed_package(module: str, package: str) -> Path:
+    """The folder of the installed PyPI package `package` (import name `module`) that holds vendor files."""
+    found = importlib.util.find_spec(module)
+    if found is None:
+        pytest.fail(f"{package} is not installed; install the [test] extra")
+    return Path(found.submodule_search_locations[0])
+
+
 @pytest.fixture
 def user_allegro_spec(tmp_path: Path) -> Path:
-    spec = tmp_path / "user_allegro" / "spec.yaml"
-    spec.parent.mkdir()
-    spec.write_text(
-        (DATA / "user_allegro" / "spec.yaml")
-        .read_text()
-        .replace("MODEL_PATH", str(example_robot_data_allegro()))
-    )
-    return spec
+    return vendor_spec(tmp_path, "user_allegro", example_robot_data_allegro())
 
 
 @pytest.fixture
 def cad_like_allegro_spec(tmp_path: Path) -> Path:
     """example-robot-data's Allegro as a CAD export writes a hand: links named after parts (`part_17_d3`),
-    visual meshes only, and a spec that names the actuated joints and nothing of the links. A stand-in for
-    a vendor's CAD export, which no PyPI package we know of ships."""
+    visual meshes only, and a spec that names the actuated joints and nothing of the links: a stand-in for
+    a CAD export beside the real one (orca_arm's Onshape export, `user_orca_spec`)."""
     urdf = example_robot_data_allegro()
     share = urdf.parents[3]  # .../share/example-robot-data: what package://example-robot-data/ names
     text = re.sub(r"<collision>.*?</collision>", "", urdf.read_text(), flags=re.S)
@@ -105,46 +115,27 @@ def cad_like_allegro_spec(tmp_path: Path) -> Path:
 
 def dexi_rs_fourier() -> Path:
     """The Fourier 6-DoF right hand URDF (with STL meshes) installed by the PyPI package dexi-rs."""
-    found = importlib.util.find_spec("dexi_rs")
-    if found is None:
-        pytest.fail("dexi-rs is not installed; install the [test] extra")
-    hands = Path(found.submodule_search_locations[0]) / "resources" / "assets" / "robots" / "hands"
+    hands = installed_package("dexi_rs", "dexi-rs") / "resources" / "assets" / "robots" / "hands"
     return hands / "fourier_hand" / "base_urdf" / "fourier_right_hand_6dof.urdf"
 
 
 @pytest.fixture
 def user_fourier_spec(tmp_path: Path) -> Path:
-    spec = tmp_path / "user_fourier" / "spec.yaml"
-    spec.parent.mkdir()
-    spec.write_text(
-        (DATA / "user_fourier" / "spec.yaml").read_text().replace("MODEL_PATH", str(dexi_rs_fourier()))
-    )
-    return spec
+    return vendor_spec(tmp_path, "user_fourier", dexi_rs_fourier())
 
 
 def orca_arm_urdf() -> Path:
     """The bimanual OpenArm URDF with two ORCA hands (STL meshes) installed by the PyPI package orca_arm."""
-    found = importlib.util.find_spec("orca_arm")
-    if found is None:
-        pytest.fail("orca_arm is not installed; install the [test] extra")
-    return Path(found.submodule_search_locations[0]) / "orcabot.urdf"
+    return installed_package("orca_arm", "orca_arm") / "orcabot.urdf"
 
 
 @pytest.fixture
 def user_orca_spec(tmp_path: Path) -> Path:
-    spec = tmp_path / "user_orca" / "spec.yaml"
-    spec.parent.mkdir()
-    spec.write_text(
-        (DATA / "user_orca" / "spec.yaml").read_text().replace("MODEL_PATH", str(orca_arm_urdf()))
-    )
-    return spec
+    return vendor_spec(tmp_path, "user_orca", orca_arm_urdf())
 
 
 def gymnasium_robotics_assets() -> Path:
-    found = importlib.util.find_spec("gymnasium_robotics")
-    if found is None:
-        pytest.fail("gymnasium-robotics is not installed; install the [test] extra")
-    return Path(found.submodule_search_locations[0]) / "envs" / "assets"
+    return installed_package("gymnasium_robotics", "gymnasium-robotics") / "envs" / "assets"
 
 
 @pytest.fixture

@@ -17,7 +17,7 @@ import platform
 import sys
 import time
 from pathlib import Path
-from unittest import mock
+from unittest import mock  # for three pieces of LeRobot 0.6.1 that offer no seam: see `train` below
 
 HELP = (
     "lerobot-train with the dataset held in memory: same flags (see lerobot-train --help), numeric datasets"

@@ -165,10 +165,10 @@ def _load_mjcf(path: Path, root_body: str | None) -> ModelFile:
         )
     if not isinstance(pk.mjcf.JOINT_TYPE_MAP, _JointTypes):
         pk.mjcf.JOINT_TYPE_MAP = _JointTypes({int(k): v for k, v in pk.mjcf.JOINT_TYPE_MAP.items()})
-    spec = mujoco.MjSpec.from_file(str(path))
-    xml = spec.to_xml() if root_body is None else _mjcf_subtree(spec.to_xml(), root_body, path)
+    xml = mujoco.MjSpec.from_file(str(path)).to_xml()  # includes resolved, defaults written out
     if root_body is not None:
-        spec = mujoco.MjSpec.from_string(xml)
+        xml = _mjcf_subtree(xml, root_body, path)
+    spec = mujoco.MjSpec.from_string(xml)
     assets = {}
     for mesh in spec.meshes:
         if mesh.file:
