@@ -3,6 +3,7 @@ Hub round trip, clear errors, and `lerobot-train` / `lerobot-eval` as the user r
 
 from __future__ import annotations
 
+import copy
 import json
 import logging
 import os
@@ -21,7 +22,7 @@ from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from lerobot.policies.factory import make_pre_post_processors
 from lerobot.processor import TransitionKey, create_transition
 from lerobot.processor.converters import batch_to_transition, transition_to_batch
-from lerobot.utils.constants import OBS_ENV_STATE
+from lerobot.utils.constants import OBS_ENV_STATE, OBS_STATE
 from lerobot.utils.feature_utils import dataset_to_policy_features
 from safetensors.torch import load_file, save_file
 from subprocesses import run_command, run_lerobot_here
@@ -825,6 +826,34 @@ def test_wrist_and_hand_each_carry_half_the_loss(data, space, dataset):
             present = torch.zeros(weights.shape[-1] - wrist, dtype=torch.bool)
             present[load_hand(hand).universal_index] = True
             assert (weights[e, wrist:][~present] == 0).all() and (weights[e, wrist:][present] > 0).all()
+
+
+@pytest.mark.parametrize("state_hand", [True, False])
+def test_the_state_encoder_reads_the_hand_only_where_asked(data, state_hand):
+    policy, *_ = make_policy(data, "leap", action_space="galr", state_hand=state_hand)
+    config, n_obs = policy.config, policy.config.n_obs_steps
+    wrist = len(config.wrist_names)
+    torch.manual_seed(0)
+    state, cloud = torch.rand(2, n_obs, config.state_width), torch.rand(2, n_obs, 32 * 3)
+    batch = {OBS_STATE: state, OBS_POINTCLOUD: cloud}
+
+    def moved(entries: slice) -> bool:
+        state = batch[OBS_STATE].clone()
+        state[..., entries] += 0.5
+        with torch.no_grad():
+            condition = policy.encode_observation(batch | {OBS_STATE: state})
+            return not torch.equal(condition, policy.encode_observation(batch))
+
+    assert moved(slice(0, wrist))
+    assert moved(slice(wrist, None)) is state_hand
+
+
+def test_a_state_encoder_without_the_hand_needs_body_entries(data):
+    policy, *_ = make_policy(data, "leap", action_space="galr", state_hand=False)
+    handless = copy.deepcopy(policy.config)
+    handless.wrist_names = []
+    with pytest.raises(ValueError, match="state_hand=false leaves the state encoder nothing to read"):
+        OpfaPolicy(handless)
 
 
 def test_state_guard_reads_the_right_frame_of_a_history(caplog):

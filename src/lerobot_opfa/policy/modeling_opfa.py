@@ -56,6 +56,11 @@ class OpfaPolicy(PreTrainedPolicy):
             config.embodiment_joints = [load_spec(hand).universal_names for hand in config.embodiments]
         if not config.embodiment_joints or (config.space.uses_galr and config.latent_dim is None):
             raise ValueError("an opfa policy is built from a dataset (dataset_meta) or a trained checkpoint")
+        if not config.state_encoder_width:
+            raise ValueError(
+                "--policy.state_hand=false leaves the state encoder nothing to read: this robot's state has "
+                "no body entries (wrist pose, arm joints), only the hand's"
+            )
         self.config = config
         hold_until_exit()  # a torchrun/accelerate rank of lerobot-train exits without hanging
         width = config.action_width
@@ -93,7 +98,7 @@ class OpfaPolicy(PreTrainedPolicy):
         # (the wrist's last centimetres above a button) would barely reach the network.
         hidden, out = config.state_mlp_dims
         self.state_encoder = nn.Sequential(
-            nn.Linear(config.state_width, hidden), nn.ReLU(), nn.Linear(hidden, out)
+            nn.Linear(config.state_encoder_width, hidden), nn.ReLU(), nn.Linear(hidden, out)
         )
         self.unet = ConditionalUnet1d(
             action_dim=width,
@@ -176,7 +181,8 @@ class OpfaPolicy(PreTrainedPolicy):
             features.append(self.point_encoder(cloud.reshape(b * n_obs, -1, 3)).view(b, n_obs, -1))
         if self.image_encoder is not None:
             features.append(self.encode_images(batch) if images is None else images)
-        return torch.cat([*features, self.state_encoder(state)], dim=-1).flatten(1)
+        body_and_hand = state[..., : self.config.state_encoder_width]
+        return torch.cat([*features, self.state_encoder(body_and_hand)], dim=-1).flatten(1)
 
     def encode_images(self, batch: dict[str, Tensor]) -> Tensor:
         """Colour cameras (B, T, 3, H, W) each -> features (B, T, I * cameras)."""
