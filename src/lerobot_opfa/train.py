@@ -3,6 +3,8 @@ checkpoints, resume, logging, wandb, accelerate) on the dataset held in memory.
 
 LeRobot's `make_train_eval_datasets` is swapped, for this call only, for one that wraps the LeRobotDatasets
 it makes in `InMemoryDataset`; everything else is LeRobot's code, including its episode-aware sampler. The
+swap, and two more (`draccus.parse`, to show a config error's cause; `sys.argv`, which LeRobot reads itself),
+are `mock.patch` because LeRobot 0.6.1 offers no seam for them: `train` says why beside each. The
 process also keeps freed memory for reuse (glibc), which spares the update step its page faults.
 """
 

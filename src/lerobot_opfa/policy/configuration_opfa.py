@@ -107,8 +107,8 @@ class OpfaConfig(PreTrainedConfig):
     state_hand: bool = True
     """The state encoder reads the hand's part of the state (z, or the hand's joints) beside the body's
     entries; off, the body's entries only, and the hand's state reaches the policy through the cloud or
-    cameras alone. Off, `galr` on LEAP `pull_drawer` succeeded 230/250 over five training seeds against
-    191/250 on (docs/results.md)."""
+    cameras alone. Off, `galr` on LEAP `pull_drawer` succeeded 230/250 over five training seeds, against
+    191/250 with it on (docs/results.md)."""
 
     # FiLM-conditioned 1-D U-Net. DP3 uses 512/1024/2048 (the `paper` experiment scale); this default trains
     # on 2 CPU cores in hours, not days.

@@ -181,8 +181,8 @@ class OpfaPolicy(PreTrainedPolicy):
             features.append(self.point_encoder(cloud.reshape(b * n_obs, -1, 3)).view(b, n_obs, -1))
         if self.image_encoder is not None:
             features.append(self.encode_images(batch) if images is None else images)
-        body_and_hand = state[..., : self.config.state_encoder_width]
-        return torch.cat([*features, self.state_encoder(body_and_hand)], dim=-1).flatten(1)
+        read = state[..., : self.config.state_encoder_width]  # the body first, then the hand (`state_hand`)
+        return torch.cat([*features, self.state_encoder(read)], dim=-1).flatten(1)
 
     def encode_images(self, batch: dict[str, Tensor]) -> Tensor:
         """Colour cameras (B, T, 3, H, W) each -> features (B, T, I * cameras)."""
