@@ -135,6 +135,7 @@ class _HandSpace:
         self._bind_maps()
         self._hands: dict[int, HandModel] = {}
         self._latent_caches: dict[int, LatentCache] = {}
+        self._decoded_caches: dict[int, LatentCache] = {}
 
     def _bind_maps(self) -> None:
         self.maps = [
@@ -204,20 +205,31 @@ class _HandSpace:
 
     def encode(self, index: int, q: torch.Tensor) -> torch.Tensor:
         cache = self._latent_caches.get(index)
-        return self._encode(index, q) if cache is None else cache.encode(q, partial(self._encode, index))
+        return self._encode(index, q) if cache is None else cache(q)
 
     def _encode(self, index: int, q: torch.Tensor) -> torch.Tensor:
         return encode_joints(self.galr_on(q.device), self.embodiments[index], q)
 
     def cache_latents(self, index: int, q: torch.Tensor) -> None:
         """Encodes hand `index`'s joint rows `q` (N, dof) of a training dataset once (latent_cache.py)."""
-        self._latent_caches[index] = LatentCache(q, partial(self._encode, index))
+        self._latent_caches[index] = LatentCache(partial(self._encode, index), rows=q)
 
     def encode_universal(self, universal: torch.Tensor, ids: torch.Tensor) -> torch.Tensor:
         return encode_universal(self.galr_on(universal.device), self.embodiments, universal, ids)
 
     def decode(self, index: int, z: torch.Tensor) -> torch.Tensor:
         return self.galr_on(z.device).decode(z, self.embodiments[index])
+
+    def as_decoded(self, index: int, z: torch.Tensor) -> torch.Tensor:
+        """Latents (..., latent) of hand `index`'s demonstrated states -> those of the poses the robot's hand
+        holds when it follows them decoded, encode(decode(z)) (`decoded_state`); each once per row."""
+        if index not in self._decoded_caches:
+
+            def round_trip(rows: torch.Tensor) -> torch.Tensor:
+                return self._encode(index, self.decode(index, rows))
+
+            self._decoded_caches[index] = LatentCache(round_trip)
+        return self._decoded_caches[index](z, keep=True)
 
     def config_dict(self) -> dict[str, Any]:
         return {
@@ -231,12 +243,12 @@ class _HandSpace:
             "joint_maps": [dict(m) for m in self.joint_maps],
         }
 
-    def galr_state(self, prefix: str) -> dict[str, torch.Tensor]:
+    def galr_state(self, prefix: str | tuple[str, ...]) -> dict[str, torch.Tensor]:
         if self.galr is None:
             return {}
         return {k: v.detach().cpu() for k, v in self.galr.state_dict().items() if k.startswith(prefix)}
 
-    def load_galr_state(self, state: dict[str, torch.Tensor], prefix: str) -> None:
+    def load_galr_state(self, state: dict[str, torch.Tensor], prefix: str | tuple[str, ...]) -> None:
         if self.galr is None:
             return
         result = self.galr.load_state_dict(state, strict=False)
@@ -289,6 +301,10 @@ class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
     """A step saved before `joint_maps`: the column order of `hand`'s joints (read, not saved)."""
     use_cached_latents: bool = False
     """Take z from a merged dataset's cache (set only when its GaLR fingerprint matches)."""
+    decoded_state: bool = False
+    """`galr`: a training frame's hand state enters as the pose the robot's hand holds when it follows the
+    demonstration decoded, its GaLR round trip (`as_decoded`); a robot's live state already is that pose.
+    False in steps saved before it (the config's `decoded_state` says why)."""
 
     def __post_init__(self):
         if self.native_joint_names and not self.joint_maps:
@@ -306,14 +322,14 @@ class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
         state = obs[OBS_STATE].float()
         action = new.get(TransitionKey.ACTION)
         simulator = (hand := obs.pop(OBS_HAND, None)) is not None
+        live = not isinstance(action, torch.Tensor)  # a robot's (training frames carry their action)
         if OBS_EMBODIMENT in obs:
             ids = frame_embodiments(obs[OBS_EMBODIMENT]).to(state.device)
 
             def convert(x, key):
-                return self._from_universal(x, ids[:, 0])
+                return self._from_universal(x, ids[:, 0], key, live)
         else:
             index = self.robot_index(hand)
-            live = not isinstance(action, torch.Tensor)  # a robot's (training frames are checked whole)
             ids = torch.full((len(state), 1), index, dtype=torch.long, device=state.device)
 
             def convert(x, key):
@@ -356,24 +372,42 @@ class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
         if live and q.isfinite().all():
             source = f"{OBS_STATE} of the robot" + ("" if simulator else f" (through {joint_map.source})")
             self.model(index).check_within_limits(q.reshape(-1, q.shape[-1]), source, LIVE_LIMIT_TOLERANCE)
-        return torch.cat([body, self.space.from_joints(self, index, q)], dim=-1)
+        hand = self.space.from_joints(self, index, q)
+        if self._decodes_state(key, live):
+            hand = self.as_decoded(index, hand)
+        return torch.cat([body, hand], dim=-1)
+
+    def _decodes_state(self, key: str, live: bool) -> bool:
+        return self.decoded_state and self.space.uses_galr and key == OBS_STATE and not live
 
     # --- merged layout: wrist + universal joints [+ cached z] ----------------------------------------
-    def _from_universal(self, x: torch.Tensor, ids: torch.Tensor) -> torch.Tensor:
+    def _from_universal(self, x: torch.Tensor, ids: torch.Tensor, key: str, live: bool) -> torch.Tensor:
         w, u = self.wrist_dim, self.wrist_dim + len(UNIVERSAL_JOINT_NAMES)
         if self.use_cached_latents and x.shape[-1] == u + self.latent_dim:
-            return torch.cat([x[..., :w], x[..., u:]], dim=-1)
-        return torch.cat([x[..., :w], self.space.from_universal(self, x[..., w:u], ids)], dim=-1)
+            hand = x[..., u:]
+        else:
+            hand = self.space.from_universal(self, x[..., w:u], ids)
+        if self._decodes_state(key, live):
+            hand = hand.clone()
+            for index in ids.unique().tolist():
+                hand[ids == index] = self.as_decoded(index, hand[ids == index])
+        return torch.cat([x[..., :w], hand], dim=-1)
 
     def get_config(self) -> dict[str, Any]:
         pinned = {} if self.hand is None else {"hand": self.hand}
-        return {**self.config_dict(), "use_cached_latents": self.use_cached_latents, **pinned}
+        decoded = {"decoded_state": True} if self.decoded_state else {}
+        return {**self.config_dict(), "use_cached_latents": self.use_cached_latents, **decoded, **pinned}
+
+    @property
+    def _galr_parts(self) -> tuple[str, ...]:
+        """The GaLR weights the step runs: the encoder, and the decoder too for `decoded_state`."""
+        return ("encoder.", "decoder.") if self.decoded_state else ("encoder.",)
 
     def state_dict(self) -> dict[str, torch.Tensor]:
-        return self.galr_state("encoder.") | self.user_hands()
+        return self.galr_state(self._galr_parts) | self.user_hands()
 
     def load_state_dict(self, state: dict[str, torch.Tensor]) -> None:
-        self.load_galr_state(self.load_user_hands(state), "encoder.")
+        self.load_galr_state(self.load_user_hands(state), self._galr_parts)
 
     def transform_features(self, features):
         for kind, key in ((PipelineFeatureType.OBSERVATION, OBS_STATE), (PipelineFeatureType.ACTION, ACTION)):

@@ -138,7 +138,8 @@ def _policy_space_tables(
     config: OpfaConfig, layout: DatasetLayout, encoder: OpfaEncodeJointsStep, root: Path
 ) -> dict[str, torch.Tensor]:
     """The normalisation tables of the policy's state and action: from the statistics `dataset merge`
-    wrote when the policy's entries are columns of the merged dataset, else from the frames."""
+    wrote when the policy's entries are columns of the merged dataset (and its states are the demonstrated
+    ones, not `decoded_state`'s), else from the frames."""
     pooled = {key: _pooled(config, body) for key, body in _bodies(config).items()}
     fitted = _merge_statistics(config, layout, encoder, root)
     state, action, floor = fitted or _frame_statistics(config, layout, encoder, root, pooled[OBS_STATE])
@@ -180,7 +181,8 @@ noise floor."""
 def _merge_statistics(
     config: OpfaConfig, layout: DatasetLayout, encoder: OpfaEncodeJointsStep, root: Path
 ) -> Fitted | None:
-    stats = read_statistics(root) if layout.kind == "merged" else None
+    decoded = encoder.decoded_state and config.space.uses_galr  # the merge saw the demonstrated states
+    stats = read_statistics(root) if layout.kind == "merged" and not decoded else None
     cached = encoder.use_cached_latents  # the merge that cached them wrote their noise floor
     wrist, n = len(config.wrist_names), len(config.embodiments)
     columns = config.space.merged_columns(wrist, config.latent_dim if cached else None)
@@ -325,7 +327,7 @@ def policy_space_steps(
         joint_maps=[m.to_dict() for m in layout.joint_maps],
         galr=galr,
     )
-    encode = OpfaEncodeJointsStep(**shared, use_cached_latents=cached)
+    encode = OpfaEncodeJointsStep(**shared, use_cached_latents=cached, decoded_state=config.decoded_state)
     tables = _policy_space_tables(config, layout, encode, Path(meta.root))
     normalize = OpfaNormalizeStep(
         tables=tables,
