@@ -395,8 +395,8 @@ class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
 
     def get_config(self) -> dict[str, Any]:
         pinned = {} if self.hand is None else {"hand": self.hand}
-        decoded = {"decoded_state": True} if self.decoded_state else {}
-        return {**self.config_dict(), "use_cached_latents": self.use_cached_latents, **decoded, **pinned}
+        flags = {"use_cached_latents": self.use_cached_latents, "decoded_state": self.decoded_state}
+        return {**self.config_dict(), **flags, **pinned}
 
     @property
     def _galr_parts(self) -> tuple[str, ...]:
