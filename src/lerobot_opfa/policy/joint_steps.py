@@ -135,7 +135,6 @@ class _HandSpace:
         self._bind_maps()
         self._hands: dict[int, HandModel] = {}
         self._latent_caches: dict[int, LatentCache] = {}
-        self._decoded_caches: dict[int, LatentCache] = {}
 
     def _bind_maps(self) -> None:
         self.maps = [
@@ -219,17 +218,6 @@ class _HandSpace:
 
     def decode(self, index: int, z: torch.Tensor) -> torch.Tensor:
         return self.galr_on(z.device).decode(z, self.embodiments[index])
-
-    def as_decoded(self, index: int, z: torch.Tensor) -> torch.Tensor:
-        """Latents (..., latent) of hand `index`'s demonstrated states -> those of the poses the robot's hand
-        holds when it follows them decoded, encode(decode(z)) (`decoded_state`); each once per row."""
-        if index not in self._decoded_caches:
-
-            def round_trip(rows: torch.Tensor) -> torch.Tensor:
-                return self._encode(index, self.decode(index, rows))
-
-            self._decoded_caches[index] = LatentCache(round_trip)
-        return self._decoded_caches[index](z, keep=True)
 
     def config_dict(self) -> dict[str, Any]:
         return {
@@ -315,6 +303,7 @@ class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
             self.hand = None  # it named the dataset's hand, not a robot to drive
         super().__post_init__()
         self.last_frames: FrameRobot | None = None
+        self._decoded_caches: dict[int, LatentCache] = {}
 
     def __call__(self, transition):
         new = transition.copy()
@@ -379,6 +368,17 @@ class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
 
     def _decodes_state(self, key: str, live: bool) -> bool:
         return self.decoded_state and self.space.uses_galr and key == OBS_STATE and not live
+
+    def as_decoded(self, index: int, z: torch.Tensor) -> torch.Tensor:
+        """Latents (..., latent) of hand `index`'s demonstrated states -> those of the poses the robot's hand
+        holds when it follows them decoded, encode(decode(z)) (`decoded_state`); each once per row."""
+        if index not in self._decoded_caches:
+
+            def round_trip(rows: torch.Tensor) -> torch.Tensor:
+                return self._encode(index, self.decode(index, rows))
+
+            self._decoded_caches[index] = LatentCache(round_trip)
+        return self._decoded_caches[index](z, keep=True)
 
     # --- merged layout: wrist + universal joints [+ cached z] ----------------------------------------
     def _from_universal(self, x: torch.Tensor, ids: torch.Tensor, key: str, live: bool) -> torch.Tensor:
