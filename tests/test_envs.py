@@ -194,3 +194,24 @@ def test_the_env_shows_the_rigs_colour_pictures_of_the_same_scene(tmp_path):
     cfg = OpfaEnvConfig(task="lift", hand="umi", obs_type="pointcloud_rgb", rgb_cameras="front,left")
     assert cfg.features_map["pixels/left_rgb"] == "observation.images.left_rgb"
     assert cfg.features["pixels/front_rgb"].shape == (96, 128, 3)
+
+
+def test_contact_does_not_push_a_joint_past_its_stop(monkeypatch):
+    """The drawer's handle pushes Shadow's thumb against its 12 deg stop: the simulated hand holds the stop
+    (its recorded reading stays within 1 % of the range), and a simulator that lets it through (MuJoCo's
+    default, softer limits) makes the demo writer refuse the episode in one line rather than write demos
+    that training refuses."""
+    from lerobot_opfa.envs.demos import expert_episode
+    from lerobot_opfa.hands import mujoco_model
+
+    env = OpfaSimEnv("pull_drawer", "shadow", obs_type="pointcloud_state", n_points=32)
+    frames, ok = expert_episode(env, seed=0, region="mid_center")
+    hand, lower, upper = env.hand_model, env.hand_model.lower.numpy(), env.hand_model.upper.numpy()
+    readings = np.stack([frame["observation.state"][-hand.dof :] for frame in frames])
+    assert ok and (np.maximum(lower - readings, readings - upper) / (upper - lower)).max() < 0.01
+    env.close()
+    monkeypatch.setattr(mujoco_model, "LIMIT_SOLREF", [0.02, 1.0])
+    env = OpfaSimEnv("pull_drawer", "shadow", obs_type="pointcloud_state", n_points=32)
+    with pytest.raises(ValueError, match=r"seed 0\).*'thumb_mcp_abd'.*past its stop"):
+        expert_episode(env, seed=0, region="mid_center")
+    env.close()

@@ -8,6 +8,7 @@ import logging
 from pathlib import Path
 
 import numpy as np
+import torch
 from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 from tqdm import tqdm
@@ -52,7 +53,7 @@ def expert_episode(
     `hold` more) and whether it succeeded."""
     obs, _ = env.reset(seed=seed, options={"region": region} if region else None)
     expert = ScriptedExpert(env, np.random.default_rng(seed))
-    frames, success, held = [], False, 0
+    frames, readings, success, held = [], [], False, 0
     steps = env.task.episode_steps
     for step in range(steps + hold):
         if step == steps and not success:
@@ -68,11 +69,18 @@ def expert_episode(
             }
         )
         obs, _, _, _, info = env.step(action)
+        readings.append(env.data.qpos[env.scene.hand_qpos])
         success = success or bool(info["is_success"])
         if success:
             if held == hold:
                 break
             held += 1
+    if success:  # training refuses a hand read past its limits: say so now, not after the recording
+        env.hand_model.check_within_limits(
+            torch.from_numpy(np.stack(readings)),
+            f"the expert's episode (seed {seed})",
+            hint="contact pushed the simulated joint past its stop; check the spec's limits and grasp pose",
+        )
     return frames, success
 
 

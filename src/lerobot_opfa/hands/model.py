@@ -26,11 +26,11 @@ from lerobot_opfa.hands.universal import UNIVERSAL_INDEX, UNIVERSAL_JOINTS
 DEFAULT_MIN_POINTS_PER_LINK = 8
 POSING_CHUNK_BYTES = 1 << 20
 LIMIT_TOLERANCE = 0.05
-LIVE_LIMIT_TOLERANCE = 0.5
-"""A robot's live reading goes past its limits by contact and calibration (the simulated umi jaw by 5 % of
-its range when it closes on the button); only a reading in other units is refused at inference."""
 """How far past a joint limit a recorded value may lie, as a share of the joint's range (a simulator's
 or a servo's overshoot), before it is refused as a wrong unit or column."""
+LIVE_LIMIT_TOLERANCE = 0.5
+"""A robot's live reading goes past its limits by contact and calibration; only a reading in other units
+is refused at inference."""
 
 
 @dataclass(frozen=True)
@@ -266,7 +266,13 @@ class HandModel:
                 f"got {tuple(q.shape)}"
             )
 
-    def check_within_limits(self, q: torch.Tensor, source: str, tolerance: float = LIMIT_TOLERANCE) -> None:
+    def check_within_limits(
+        self,
+        q: torch.Tensor,
+        source: str,
+        tolerance: float = LIMIT_TOLERANCE,
+        hint: str = "check the joints' units and order (`lerobot-opfa hands list`)",
+    ) -> None:
         """Refuses joint values (B, dof) from `source` that are not finite or lie beyond the model's limits
         by more than `tolerance` of the joint's range (a recording in other units, or the wrong
         columns): the GaLR would encode them without a word, into latents no policy should learn."""
@@ -289,7 +295,7 @@ class HandModel:
             raise ValueError(
                 f"{source}: joint '{self.joint_names[j]}' of hand '{self.name}' is outside its limits "
                 f"[{lower[j]:.4g}, {upper[j]:.4g}] in {int(outside[:, j].sum())} of {len(q)} frames (worst "
-                f"{worst:.4g}); check the joints' units and order (`lerobot-opfa hands list`)"
+                f"{worst:.4g}); {hint}"
             )
 
     # --- kinematics ---------------------------------------------------------------------------------

@@ -17,6 +17,10 @@ DEFAULT_KP = {"revolute": 2.0, "prismatic": 400.0}
 # Rotor inertia added to every joint whose model gives none: finger links weigh grams, and without it
 # the servos' damping makes their dynamics too stiff for a 2 ms step.
 DEFAULT_ARMATURE = 1e-3
+# Joint limits as stiff as a 2 ms step allows (MuJoCo's safe minimum time constant is two steps): at its
+# default 0.02 s a drawer's handle pushed Shadow's thumb 11 % and SVH's 10 % of their range past their
+# stops, readings no real hand gives and training refuses; at 0.004 s no expert goes 1 % past.
+LIMIT_SOLREF = [0.004, 1.0]
 # Contact bits: hand geoms touch everything with the default bits (tables, objects) but not each other;
 # primitive links overlap at their joints, and real hands' mechanics keep fingers apart.
 HAND_CONTYPE, HAND_CONAFFINITY = 2, 1
@@ -29,6 +33,7 @@ def hand_mjspec(hand: HandModel, kp: dict[str, float] | None = None) -> mujoco.M
     spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
     for joint in spec.joints:
         joint.armature = joint.armature or DEFAULT_ARMATURE
+        joint.solref_limit = LIMIT_SOLREF
         # The servos below bring their own damping; a vendor's joint damping and friction are tuned for its
         # own actuators (example-robot-data's Allegro: 10 N m of friction) and would stall them.
         joint.damping, joint.frictionloss = [0.0, 0.0, 0.0], 0.0
