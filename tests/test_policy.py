@@ -650,6 +650,37 @@ def test_interleaved_pipelines_of_one_checkpoint_act_each_for_its_own_hand(data,
     assert all(torch.equal(decoded[i], expected[hand]) for i, hand in enumerate(hands))
 
 
+def test_a_checkpoint_saves_the_robot_record_once_in_its_encode_step(data, tmp_path):
+    """The robot's entries, hands, maps and GaLR are written by the encode step alone; the decode step saves
+    nothing and decodes with its paired encode step's, so a postprocessor loaded without its preprocessor
+    says in one line how to load it."""
+    from lerobot.processor import PolicyProcessorPipeline
+    from lerobot.processor.converters import policy_action_to_transition, transition_to_policy_action
+
+    policy, pre, post, _ = make_policy(data, "merged")
+    for obj in (pre, post):
+        obj.save_pretrained(tmp_path)
+    saved = {
+        name: {s["registry_name"]: s for s in json.loads((tmp_path / f"{name}.json").read_text())["steps"]}
+        for name in ("policy_preprocessor", "policy_postprocessor")
+    }
+    encode, decode = (
+        saved["policy_preprocessor"]["opfa_encode_joints"],
+        saved["policy_postprocessor"]["opfa_decode_joints"],
+    )
+    assert decode["config"] == {} and "state_file" not in decode
+    assert encode["config"]["embodiments"] == policy.config.embodiments and encode["config"]["joint_maps"]
+    weights = load_file(tmp_path / encode["state_file"])
+    assert any(k.startswith("decoder.") for k in weights) and any(k.startswith("encoder.") for k in weights)
+    alone = PolicyProcessorPipeline.from_pretrained(
+        tmp_path, config_filename="policy_postprocessor.json", to_transition=policy_action_to_transition,
+        to_output=transition_to_policy_action,
+    )  # fmt: skip
+    with pytest.raises(ValueError, match="make_pre_post_processors") as error:
+        alone(torch.zeros(1, policy.config.output_features["action"].shape[0]))
+    assert "\n" not in str(error.value)
+
+
 def test_a_policy_given_an_observation_its_preprocessor_did_not_make_says_so(data):
     policy, _, _, _ = make_policy(data, "merged")
     policy.eval()

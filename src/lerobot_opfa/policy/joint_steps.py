@@ -6,7 +6,8 @@ into the policy space: body + z for `galr`, body + that hand's joints for `raw`,
 joints for `per_embodiment`. It also leaves the batch's embodiment ids in `observation.embodiment`.
 
 Postprocessor: `opfa_decode_joints` maps policy-space actions back to the robot's action entries (for
-`galr` through the GaLR decoder), inverting the same joint map.
+`galr` through the GaLR decoder), inverting the same joint map. The robot's record and the GaLR are saved
+once, by the encode step; the decode step uses its pair's.
 
 Which robot a frame comes from is said once, by the frame: `observation.embodiment` ids (a merged dataset),
 `observation.hand` (the simulator's frames, whose entries are its hand's body entries then joints in spec
@@ -289,6 +290,9 @@ class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
     """A step saved before `joint_maps`: the column order of `hand`'s joints (read, not saved)."""
     use_cached_latents: bool = False
     """Take z from a merged dataset's cache (set only when its GaLR fingerprint matches)."""
+    record_for_decode: bool = False
+    """The postprocessor's decode step runs on this step's record and GaLR, saved here once (the GaLR's
+    decoder too). False in steps saved before, whose decode step saved its own copy."""
     decoded_state: bool = False
     """`galr`: a training frame's hand state enters as the pose the robot's hand holds when it follows the
     demonstration decoded, its GaLR round trip (`as_decoded`); a robot's live state already is that pose.
@@ -395,13 +399,18 @@ class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
 
     def get_config(self) -> dict[str, Any]:
         pinned = {} if self.hand is None else {"hand": self.hand}
-        flags = {"use_cached_latents": self.use_cached_latents, "decoded_state": self.decoded_state}
+        flags = {
+            "use_cached_latents": self.use_cached_latents,
+            "record_for_decode": self.record_for_decode,
+            "decoded_state": self.decoded_state,
+        }
         return {**self.config_dict(), **flags, **pinned}
 
     @property
     def _galr_parts(self) -> tuple[str, ...]:
-        """The GaLR weights the step runs: the encoder, and the decoder too for `decoded_state`."""
-        return ("encoder.", "decoder.") if self.decoded_state else ("encoder.",)
+        """The GaLR weights the step holds: the encoder, and the decoder too where it decodes (its decode
+        step, `decoded_state`)."""
+        return ("encoder.", "decoder.") if self.record_for_decode or self.decoded_state else ("encoder.",)
 
     def state_dict(self) -> dict[str, torch.Tensor]:
         return self.galr_state(self._galr_parts) | self.user_hands()
@@ -415,6 +424,15 @@ class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
                 width = self.policy_width(key)
                 features[kind][key] = PolicyFeature(type=features[kind][key].type, shape=(width,))
         return features
+
+
+def single_index(ids: torch.Tensor, embodiments: list[str]) -> int:
+    """The one embodiment of a batch's ids: a postprocessor decodes one robot's actions at a time."""
+    unique = ids.unique()
+    if len(unique) != 1:
+        names = [embodiments[i] for i in unique.tolist()]
+        raise ValueError(f"a batch to decode must come from one hand, got {names}")
+    return int(unique[0])
 
 
 def paired_frames(step: AbsoluteActionsProcessorStep, batch: int, embodiments: list[str]) -> FrameRobot:
@@ -437,31 +455,46 @@ def paired_frames(step: AbsoluteActionsProcessorStep, batch: int, embodiments: l
 @dataclass
 class OpfaDecodeJointsStep(_HandSpace, AbsoluteActionsProcessorStep):
     """Policy-space actions (B, [T], body + ...) -> the attached robot's action entries, in its order and
-    units (its joint map inverted)."""
+    units (its joint map inverted). The robot's record and the GaLR are its encode step's
+    (`relative_step`), saved there once; a step saved before that carries its own copy (the `_HandSpace`
+    fields of its config) and runs on it."""
+
+    action_space: str | None = None
+    """Set only in a step saved with its own copy of the record."""
+
+    def __post_init__(self):
+        if self.action_space is not None:
+            super().__post_init__()
+
+    @property
+    def hands(self) -> _HandSpace:
+        """The record and GaLR this step decodes with: its own copy, else its encode step's."""
+        if self.action_space is not None:
+            return self
+        if not isinstance(self.relative_step, OpfaEncodeJointsStep):
+            raise ValueError(
+                "this postprocessor decodes with its preprocessor's robot record: load the two with "
+                "lerobot's make_pre_post_processors(..., pretrained_path=...), which pairs them"
+            )
+        return self.relative_step
 
     def __call__(self, transition):
         new = transition.copy()
         action = new[TransitionKey.ACTION]
-        frames = paired_frames(self, len(action), self.embodiments)
-        index = self.single_index(frames.ids)
-        body = self.body_dim(ACTION)
+        hands = self.hands
+        frames = paired_frames(self, len(action), hands.embodiments)
+        index = single_index(frames.ids, hands.embodiments)
+        body = hands.body_dim(ACTION)
         wrist, rest = action[..., :body], action[..., body:]
-        q = self.space.to_joints(self, index, rest)
-        new[TransitionKey.ACTION] = self.robot_map(index, frames.simulator).join(wrist, q)
+        q = hands.space.to_joints(hands, index, rest)
+        new[TransitionKey.ACTION] = hands.robot_map(index, frames.simulator).join(wrist, q)
         return new
 
-    def single_index(self, ids: torch.Tensor) -> int:
-        unique = ids.unique()
-        if len(unique) != 1:
-            names = [self.embodiments[i] for i in unique.tolist()]
-            raise ValueError(f"a batch to decode must come from one hand, got {names}")
-        return int(unique[0])
-
     def get_config(self) -> dict[str, Any]:
-        return self.config_dict()
+        return {} if self.action_space is None else self.config_dict()
 
     def state_dict(self) -> dict[str, torch.Tensor]:
-        return self.galr_state("decoder.") | self.user_hands()
+        return {} if self.action_space is None else self.galr_state("decoder.") | self.user_hands()
 
     def load_state_dict(self, state: dict[str, torch.Tensor]) -> None:
         self.load_galr_state(self.load_user_hands(state), "decoder.")

@@ -316,7 +316,7 @@ def policy_space_steps(
     their inverses, for the config `resolve_config` filled from `meta`; the postprocessor's steps are
     paired with the encode step (`joint_steps`)."""
     cached = galr is not None and layout.latent_dim > 0  # policy_galr checked that this GaLR made them
-    shared = dict(
+    encode = OpfaEncodeJointsStep(
         action_space=config.action_space,
         embodiments=list(config.embodiments),
         hand_refs=list(layout.hand_refs),
@@ -326,8 +326,10 @@ def policy_space_steps(
         galr_config=dataclasses.asdict(galr.config) if galr is not None else None,
         joint_maps=[m.to_dict() for m in layout.joint_maps],
         galr=galr,
+        use_cached_latents=cached,
+        record_for_decode=True,
+        decoded_state=config.decoded_state,
     )
-    encode = OpfaEncodeJointsStep(**shared, use_cached_latents=cached, decoded_state=config.decoded_state)
     tables = _policy_space_tables(config, layout, encode, Path(meta.root))
     normalize = OpfaNormalizeStep(
         tables=tables,
@@ -340,9 +342,7 @@ def policy_space_steps(
         embodiments=list(config.embodiments),
         relative_step=encode,
     )
-    return PolicySpaceSteps(
-        encode, normalize, unnormalize, OpfaDecodeJointsStep(**shared, relative_step=encode)
-    )
+    return PolicySpaceSteps(encode, normalize, unnormalize, OpfaDecodeJointsStep(relative_step=encode))
 
 
 def make_opfa_pre_post_processors(
