@@ -34,6 +34,7 @@ from lerobot_opfa.datasets.merge import merge_datasets
 from lerobot_opfa.datasets.statistics import STATS_FILE
 from lerobot_opfa.datasets.synthetic import write_synthetic_dataset
 from lerobot_opfa.features import OBS_EMBODIMENT, OBS_HAND, OBS_POINTCLOUD
+from lerobot_opfa.flags import FlagError
 from lerobot_opfa.galr.model import Galr, GalrConfig, hand_record
 from lerobot_opfa.hands import load_hand
 from lerobot_opfa.hands.universal import UNIVERSAL_JOINT_NAMES
@@ -648,6 +649,21 @@ def test_interleaved_pipelines_of_one_checkpoint_act_each_for_its_own_hand(data,
     decoded = [post_(action) for (_, post_), action in zip(pipelines, actions, strict=True)]
     assert [len(d[0]) for d in decoded] == [6 + 6, 6 + 16]
     assert all(torch.equal(decoded[i], expected[hand]) for i, hand in enumerate(hands))
+
+
+def test_state_hand_noise_perturbs_the_hands_state_in_training_only(data):
+    """`state_hand_noise` moves the hand's part of a training batch's state by about its deviation and
+    leaves the body's entries, the action, and any batch outside training as they are."""
+    policy, _, _, _ = make_policy(data, "merged", state_hand_noise=0.1)
+    body = len(policy.config.wrist_names)
+    state = torch.zeros(64, 2, policy.config.state_width)
+    batch = {OBS_STATE: state, "action": torch.zeros(64, 16, 3)}
+    noisy = policy.train().with_state_noise(batch)
+    assert torch.equal(noisy[OBS_STATE][..., :body], state[..., :body]) and noisy["action"] is batch["action"]
+    assert abs(noisy[OBS_STATE][..., body:].std().item() - 0.1) < 0.01
+    assert policy.eval().with_state_noise(batch) is batch
+    with pytest.raises(FlagError, match="state_hand_noise"):
+        make_policy(data, "merged", state_hand_noise=-0.1)
 
 
 def test_a_checkpoint_saves_the_robot_record_once_in_its_encode_step(data, tmp_path):

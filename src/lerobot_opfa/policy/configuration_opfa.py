@@ -109,6 +109,12 @@ class OpfaConfig(PreTrainedConfig):
     entries; off, the body's entries only, and the hand's state reaches the policy through the cloud or
     cameras alone. Off, `galr` on LEAP `pull_drawer` succeeded 230/250 over five training seeds, against
     191/250 with it on, both without `decoded_state` (docs/results.md)."""
+    state_hand_noise: float = 0.0
+    """Standard deviation of the Gaussian noise added in training to the hand's part of the normalised state.
+    A deployed policy's own prediction error leaves its hand a little off the demonstrated pose, while a
+    demo's hand during a reach is one pose in every frame: a policy that reads that exactness as the phase
+    moves on early (Allegro `pull_drawer`: deployed reach states 0.2 from every demo reach state, nearest
+    to the grasp's, docs/results.md)."""
     decoded_state: bool = True
     """`galr`: train on the hand states the policy meets when deployed. A deployed robot's hand holds the
     decoded action, the GaLR round trip of the demonstrated pose (on LEAP 1.5 deg off on average, up to 9
@@ -172,6 +178,8 @@ class OpfaConfig(PreTrainedConfig):
                 raise ValueError(f"`{name}` must be one of {list(valid)}, got '{value}'")
         if self.cloud_points < 1:
             raise ValueError(f"`cloud_points` must be positive, got {self.cloud_points}")
+        if self.state_hand_noise < 0:
+            raise ValueError(f"`state_hand_noise` (a deviation) must be >= 0, got {self.state_hand_noise}")
         if not 0.1 <= self.image_crop_ratio <= 1:
             raise ValueError(f"`image_crop_ratio` must be in [0.1, 1], got {self.image_crop_ratio}")
         factor = 2 ** (len(self.down_dims) - 1)

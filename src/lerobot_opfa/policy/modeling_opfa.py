@@ -193,6 +193,7 @@ class OpfaPolicy(PreTrainedPolicy):
     def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
         """Denoising loss of the action chunk (prediction target: the clean sample by default), plus (with
         `image_goal`) the error of the episode's last wrist pose predicted from its first picture."""
+        batch = self.with_state_noise(batch)
         if self.image_goal is None:
             return self.denoising_loss(batch, batch[ACTION]), {}
         # The windows start with the episode's first frame and end with its last action: one encoder pass.
@@ -204,6 +205,15 @@ class OpfaPolicy(PreTrainedPolicy):
             "denoising_loss": denoising.item(),
             "image_goal_loss": goal_loss.item(),
         }
+
+    def with_state_noise(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
+        """The batch with `state_hand_noise` on the hand's part of the state, in training."""
+        sigma = self.config.state_hand_noise
+        if not (self.training and sigma):
+            return batch
+        state, body = batch[OBS_STATE], len(self.config.wrist_names)
+        hand = state[..., body:] + sigma * torch.randn_like(state[..., body:])
+        return batch | {OBS_STATE: torch.cat([state[..., :body], hand], dim=-1)}
 
     def denoising_loss(self, batch: dict[str, Tensor], x0: Tensor, images: Tensor | None = None) -> Tensor:
         """The chunk `x0` (B, horizon, A) noised at random steps, denoised under the observation."""
