@@ -95,23 +95,27 @@ def _key(run: dict) -> tuple:
 
 
 def plot(runs: list[dict], path: Path) -> None:
+    """One panel per task: each hand's success as a bar per (action space, epochs) measured."""
     tasks = sorted({r["task"] for r in runs})
-    fig, axes = plt.subplots(1, len(tasks), figsize=(5.5 * len(tasks), 4), squeeze=False)
+    fig, axes = plt.subplots(1, len(tasks), figsize=(5.5 * len(tasks), 4.6), squeeze=False)
     for ax, task in zip(axes[0], tasks, strict=True):
-        keys = sorted({(r["hand"], r["action_space"]) for r in runs if r["task"] == task})
-        for hand, space in keys:
-            rows = sorted(
-                (r for r in runs if (r["task"], r["hand"], r["action_space"]) == (task, hand, space)),
-                key=lambda r: r["epochs"],
-            )
-            style = "-o" if space == "galr" else "--s"
-            ax.plot([r["epochs"] for r in rows], [100 * r["successes"] / r["episodes"] for r in rows], style,
-                    label=f"{hand} {space}")  # fmt: skip
+        rows = [r for r in runs if r["task"] == task]
+        hands = sorted({r["hand"] for r in rows})
+        series = sorted({(r["action_space"], r["epochs"]) for r in rows}, key=lambda s: (s[0] != "raw", s[1]))
+        width = 0.8 / len(series)
+        for i, (space, epochs) in enumerate(series):
+            rate = {
+                r["hand"]: 100 * r["successes"] / r["episodes"]
+                for r in rows
+                if (r["action_space"], r["epochs"]) == (space, epochs)
+            }
+            at = [h for h, hand in enumerate(hands) if hand in rate]
+            ax.bar([h + (i - (len(series) - 1) / 2) * width for h in at], [rate[hands[h]] for h in at], width,
+                   label=f"{space}, {epochs} epochs", hatch="//" if space == "raw" else None)  # fmt: skip
         ax.axhline(100 * TARGET, color="grey", lw=0.8, ls=":")
-        ax.set(
-            xscale="log", xlabel="epochs", ylabel="in-distribution success (%)", title=task, ylim=(-3, 103)
-        )
-        ax.legend(fontsize=8)
+        ax.set(xticks=range(len(hands)), xticklabels=hands, ylabel="in-distribution success (%)", title=task,
+               ylim=(0, 103))  # fmt: skip
+        ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=2)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
