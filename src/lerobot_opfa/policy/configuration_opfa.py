@@ -108,7 +108,8 @@ class OpfaConfig(PreTrainedConfig):
     """The state encoder reads the hand's part of the state (z, or the hand's joints) beside the body's
     entries; off, the body's entries only, and the hand's state reaches the policy through the cloud or
     cameras alone. Off, `galr` on `pull_drawer` in `mid_center` succeeded 50, 49 and 50 of 50 times
-    (Allegro, SVH, LEAP) against 37, 25 and 38 with it on; without `decoded_state`, LEAP in `far_left`
+    (Allegro, SVH, LEAP) against 37, 25 and 38 with it on, but SVH `lift` 32 against 50; without
+    `decoded_state`, LEAP in `far_left`
     succeeded 230/250 over five training seeds, against 191/250 (docs/results.md)."""
     state_hand_noise: float = 0.0
     """Standard deviation of the Gaussian noise added in training to the hand's part of the normalised state.
