@@ -109,14 +109,15 @@ class OpfaConfig(PreTrainedConfig):
     entries; off, the body's entries only, and the hand's state reaches the policy through the cloud or
     cameras alone. Off, `galr` on `pull_drawer` in `mid_center` succeeded 50, 49 and 50 of 50 times
     (Allegro, SVH, LEAP) against 37, 25 and 38 with it on, but SVH `lift` 32 against 50; without
-    `decoded_state`, LEAP in `far_left`
-    succeeded 230/250 over five training seeds, against 191/250 (docs/results.md)."""
+    `decoded_state`, LEAP in `far_left` succeeded 230/250 over five training seeds, against 191/250
+    (docs/results.md)."""
     state_hand_noise: float = 0.0
     """Standard deviation of the Gaussian noise added in training to the hand's part of the normalised state.
     A deployed policy's own prediction error leaves its hand a little off the demonstrated pose, while a
     demo's hand during a reach is one pose in every frame: a policy that reads that exactness as the phase
     moves on early (Allegro `pull_drawer`: deployed reach states 0.2 from every demo reach state, nearest
-    to the grasp's; 0.05 took it from 37/50 to 46/50, docs/results.md)."""
+    to the grasp's). 0.05 took `pull_drawer` from 37/50 to 46/50 (Allegro) and from 25/50 to 45/50 (SVH),
+    with SVH `lift` at 49/50 (docs/results.md)."""
     decoded_state: bool = True
     """`galr`: train on the hand states the policy meets when deployed. A deployed robot's hand holds the
     decoded action, the GaLR round trip of the demonstrated pose (on LEAP 1.5 deg off on average, up to 9
