@@ -45,6 +45,8 @@ from lerobot_opfa.hands.universal import UNIVERSAL_JOINT_NAMES
 from lerobot_opfa.policy.action_spaces import ACTION_SPACES, ActionSpace
 from lerobot_opfa.policy.latent_cache import LatentCache
 
+LOAD_PAIRED = "load the two with lerobot's make_pre_post_processors(..., pretrained_path=...): it pairs them"
+"""How a postprocessor gets its preprocessor's encode step, the one it reads the robot from."""
 USER_HAND = "user_hand."
 """State-dict key prefix of a user hand's archive (`hands.bundle`), by the hand's name."""
 
@@ -101,8 +103,8 @@ class PointCloudBatchStep(ObservationProcessorStep):
 
 @dataclass
 class _HandSpace:
-    """What both joint steps share: the embodiments, their hands, the GaLR and the action space (the
-    `action_spaces.Hands` a space converts with)."""
+    """The robot record the encode step holds (and a decode step saved before it did): the embodiments,
+    their hands, the GaLR and the action space (the `action_spaces.Hands` a space converts with)."""
 
     action_space: str = "galr"
     embodiments: list[str] = field(default_factory=list)
@@ -446,8 +448,7 @@ def paired_frames(step: AbsoluteActionsProcessorStep, batch: int, embodiments: l
         return FrameRobot(torch.zeros(batch, 1, dtype=torch.long), simulator=False)
     raise ValueError(
         "this postprocessor needs the robot its preprocessor saw: run the preprocessor on the observation "
-        "first, and load the two with lerobot's make_pre_post_processors(..., pretrained_path=...), which "
-        "pairs them"
+        f"first, and {LOAD_PAIRED}"
     )
 
 
@@ -472,10 +473,7 @@ class OpfaDecodeJointsStep(_HandSpace, AbsoluteActionsProcessorStep):
         if self.action_space is not None:
             return self
         if not isinstance(self.relative_step, OpfaEncodeJointsStep):
-            raise ValueError(
-                "this postprocessor decodes with its preprocessor's robot record: load the two with "
-                "lerobot's make_pre_post_processors(..., pretrained_path=...), which pairs them"
-            )
+            raise ValueError(f"this postprocessor decodes with its preprocessor's robot: {LOAD_PAIRED}")
         return self.relative_step
 
     def __call__(self, transition):
