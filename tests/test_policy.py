@@ -666,6 +666,22 @@ def test_state_hand_noise_perturbs_the_hands_state_in_training_only(data):
         make_policy(data, "merged", state_hand_noise=-0.1)
 
 
+def test_galr_trains_by_default_on_a_hand_state_as_loose_as_a_deployed_one(data):
+    """The cause of `galr`'s `pull_drawer` losses (docs/results.md): a deployed `galr` hand holds the decoded
+    predicted z, off every demonstrated state, so by default a `galr` policy trains on a perturbed hand
+    state; `per_embodiment` (joints, like `raw`), whose hand reads back what it was sent, trains on the
+    demonstrated one."""
+    body_and_hand = {}
+    for space in ("galr", "per_embodiment"):
+        policy, _, _, _ = make_policy(data, "merged", action_space=space)
+        state = torch.zeros(64, 2, policy.config.state_width)
+        noisy = policy.train().with_state_noise({OBS_STATE: state})[OBS_STATE]
+        body = len(policy.config.wrist_names)
+        body_and_hand[space] = noisy[..., :body].abs().max().item(), noisy[..., body:].std().item()
+    assert body_and_hand["galr"][0] == 0 and abs(body_and_hand["galr"][1] - 0.05) < 0.01
+    assert body_and_hand["per_embodiment"] == (0, 0)
+
+
 def test_a_checkpoint_saves_the_robot_record_once_in_its_encode_step(data, tmp_path):
     """The robot's entries, hands, maps and GaLR are written by the encode step alone; the decode step saves
     nothing and decodes with its paired encode step's, so a postprocessor loaded without its preprocessor

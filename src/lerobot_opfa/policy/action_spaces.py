@@ -52,6 +52,9 @@ class ActionSpace:
     uses_galr: ClassVar[bool] = False
     pools_hand_statistics: ClassVar[bool] = False
     """Normalise the hand entries with one range over all embodiments (they mean the same for every hand)."""
+    state_hand_noise: ClassVar[float] = 0.0
+    """The default deviation of the training noise on the hand's part of the normalised state: how far a
+    deployed hand state may lie from every demonstrated one (`OpfaConfig.state_hand_noise`)."""
 
     def check_embodiments(self, embodiments: list[str]) -> None:
         """Raises when this space cannot train on these embodiments together."""
@@ -91,6 +94,7 @@ class GalrSpace(ActionSpace):
     name = "galr"
     uses_galr = True
     pools_hand_statistics = True
+    state_hand_noise = 0.05  # a deployed hand holds the decoded *predicted* z, 0.07-0.2 off the demos' states
 
     def hand_width(self, latent_dim, embodiment_joints):
         if latent_dim is None:

@@ -111,13 +111,13 @@ class OpfaConfig(PreTrainedConfig):
     (Allegro, SVH, LEAP) against 37, 25 and 38 with it on, but SVH `lift` 32 against 50; without
     `decoded_state`, LEAP in `far_left` succeeded 230/250 over five training seeds, against 191/250
     (docs/results.md)."""
-    state_hand_noise: float = 0.0
-    """Standard deviation of the Gaussian noise added in training to the hand's part of the normalised state.
-    A deployed policy's own prediction error leaves its hand a little off the demonstrated pose, while a
-    demo's hand during a reach is one pose in every frame: a policy that reads that exactness as the phase
-    moves on early (Allegro `pull_drawer`: deployed reach states 0.2 from every demo reach state, nearest
-    to the grasp's). 0.05 took `pull_drawer` from 37/50 to 46/50 (Allegro) and from 25/50 to 45/50 (SVH),
-    with SVH `lift` at 49/50 (docs/results.md)."""
+    state_hand_noise: float | None = None
+    """Standard deviation of the Gaussian noise added in training to the hand's part of the normalised state;
+    unset, the action space's (`galr` 0.05, `raw` and `per_embodiment` 0). A deployed `galr` hand holds the
+    decoded *predicted* z, a little off the demonstrated pose, while a demo's hand during a reach is one pose
+    in every frame: a policy that reads that exactness as the phase moves on early (Allegro `pull_drawer`:
+    deployed reach states 0.2 from every demo reach state, nearest to the grasp's). Without it, `galr` on
+    `pull_drawer` succeeded 37/50 (Allegro) and 25/50 (SVH); docs/results.md has the measurements."""
     decoded_state: bool = True
     """`galr`: train on the hand states the policy meets when deployed. A deployed robot's hand holds the
     decoded action, the GaLR round trip of the demonstrated pose (on LEAP 1.5 deg off on average, up to 9
@@ -181,6 +181,8 @@ class OpfaConfig(PreTrainedConfig):
                 raise ValueError(f"`{name}` must be one of {list(valid)}, got '{value}'")
         if self.cloud_points < 1:
             raise ValueError(f"`cloud_points` must be positive, got {self.cloud_points}")
+        if self.state_hand_noise is None:
+            self.state_hand_noise = self.space.state_hand_noise
         if self.state_hand_noise < 0:
             raise ValueError(f"`state_hand_noise` (a deviation) must be >= 0, got {self.state_hand_noise}")
         if not 0.1 <= self.image_crop_ratio <= 1:
