@@ -108,16 +108,16 @@ class OpfaConfig(PreTrainedConfig):
     """The state encoder reads the hand's part of the state (z, or the hand's joints) beside the body's
     entries; off, the body's entries only, and the hand's state reaches the policy through the cloud or
     cameras alone. Off, `galr` on `pull_drawer` in `mid_center` succeeded 50, 49 and 50 of 50 times
-    (Allegro, SVH, LEAP) against 37, 25 and 38 with it on, but SVH `lift` 32 against 50; without
-    `decoded_state`, LEAP in `far_left` succeeded 230/250 over five training seeds, against 191/250
-    (docs/results.md)."""
+    (Allegro, SVH, LEAP) against 37, 25 and 38 with it on and no `state_hand_noise`, but SVH `lift` 32
+    against 50; without `decoded_state`, LEAP in `far_left` succeeded 230/250 over five training seeds,
+    against 191/250 (docs/results.md)."""
     state_hand_noise: float | None = None
     """Standard deviation of the Gaussian noise added in training to the hand's part of the normalised state;
     unset, the action space's (`galr` 0.05, `raw` and `per_embodiment` 0). A deployed `galr` hand holds the
     decoded *predicted* z, a little off the demonstrated pose, while a demo's hand during a reach is one pose
     in every frame: a policy that reads that exactness as the phase moves on early (Allegro `pull_drawer`:
     deployed reach states 0.2 from every demo reach state, nearest to the grasp's). Without it, `galr` on
-    `pull_drawer` succeeded 37/50 (Allegro) and 25/50 (SVH); docs/results.md has the measurements."""
+    `pull_drawer` succeeded 37/50 (Allegro) and 25/50 (SVH), with it 50/50 and 45/50 (docs/results.md)."""
     decoded_state: bool = True
     """`galr`: train on the hand states the policy meets when deployed. A deployed robot's hand holds the
     decoded action, the GaLR round trip of the demonstrated pose (on LEAP 1.5 deg off on average, up to 9
