@@ -94,6 +94,17 @@ def _key(run: dict) -> tuple:
     return run["hand"], run["task"], run["action_space"], run["epochs"]
 
 
+def record(out: Path, result: dict) -> list[dict]:
+    """Every run in `out` with `result` in place of its cell's: the file is read again just before it is
+    written, so runs of this benchmark that another process recorded meanwhile stay."""
+    runs = json.loads(out.read_text()) if out.exists() else []
+    runs = [r for r in runs if _key(r) != _key(result)] + [result]
+    partial = out.with_suffix(".json.partial")
+    partial.write_text(json.dumps(runs, indent=2))
+    partial.replace(out)
+    return runs
+
+
 def plot(runs: list[dict], path: Path) -> None:
     """One panel per task: each hand's success as a bar per (action space, epochs) measured."""
     tasks = sorted({r["task"] for r in runs})
@@ -138,16 +149,14 @@ def main() -> None:
                "machine": f"{os.cpu_count()} cores, {platform.machine()}"}  # fmt: skip
     RESULTS.mkdir(parents=True, exist_ok=True)
     out = RESULTS / "learnability.json"
-    runs: list[dict] = json.loads(out.read_text()) if out.exists() else []  # other tasks' runs stay
     lengths = sorted(int(e) for e in args.epochs.split(","))
     for task in args.tasks.split(","):
         for hand in args.hands.split(","):
             for space in args.spaces.split(","):
                 for epochs in lengths:
                     result = {**run(args.work, args.galr, hand, task, space, epochs), **setting}
-                    runs = [r for r in runs if _key(r) != _key(result)] + [result]
+                    runs = record(out, result)
                     print(json.dumps(result), flush=True)
-                    out.write_text(json.dumps(runs, indent=2))
                     plot(runs, RESULTS / "learnability.png")
                     if result["successes"] >= TARGET * result["episodes"]:
                         break

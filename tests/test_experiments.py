@@ -301,3 +301,22 @@ def test_committed_experiment_tables_regenerate_from_their_json(name):
         return [line for line in text.splitlines() if line.startswith("|")]
 
     assert table_rows(tables(rows)) == table_rows(report["table_markdown"])
+
+
+def test_a_learnability_run_keeps_the_cells_another_run_recorded_meanwhile(tmp_path):
+    """Two runs of the learnability benchmark from one clone share its JSON: each records its cell into the
+    file as it is when the cell ends, so neither drops the other's (they used to, holding a stale copy)."""
+    import importlib.util
+
+    path = Path(__file__).parents[1] / "benchmarks" / "bench_learnability.py"
+    spec = importlib.util.spec_from_file_location("bench_learnability", path)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    out = tmp_path / "learnability.json"
+    cell = {"hand": "leap", "task": "lift", "action_space": "galr", "epochs": 50, "successes": 49}
+    bench.record(out, cell)
+    other = {**cell, "action_space": "raw", "successes": 50}
+    out.write_text(json.dumps(json.loads(out.read_text()) + [other]))  # another process, meanwhile
+    runs = bench.record(out, {**cell, "successes": 50})
+    assert sorted((r["action_space"], r["successes"]) for r in runs) == [("galr", 50), ("raw", 50)]
+    assert json.loads(out.read_text()) == runs
