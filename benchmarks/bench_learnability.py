@@ -30,7 +30,14 @@ import matplotlib  # noqa: E402
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from lerobot_opfa.experiments.jobs import Demos, Evaluation, Training, Workspace, galr_identity  # noqa: E402
+from lerobot_opfa.experiments.jobs import (  # noqa: E402
+    Demos,
+    Evaluation,
+    Training,
+    Workspace,
+    galr_identity,
+    write_json,
+)
 from lerobot_opfa.experiments.scales import SCALES, Scale  # noqa: E402
 from lerobot_opfa.galr.checkpoints import packaged_path  # noqa: E402
 
@@ -99,9 +106,7 @@ def record(out: Path, result: dict) -> list[dict]:
     written, so runs of this benchmark that another process recorded meanwhile stay."""
     runs = json.loads(out.read_text()) if out.exists() else []
     runs = [r for r in runs if _key(r) != _key(result)] + [result]
-    partial = out.with_suffix(".json.partial")
-    partial.write_text(json.dumps(runs, indent=2))
-    partial.replace(out)
+    write_json(out, runs)
     return runs
 
 
