@@ -186,14 +186,14 @@ def test_split_and_join_are_inverse_and_apply_the_units(rigs):
         meta.features[OBS_STATE]["names"], meta.features[ACTION]["names"]
     )
     action = torch.rand(5, len(ARM) + len(INSPIRE), dtype=torch.float64) * 1000
-    body, q = joint_map.split(action, ACTION)
+    body, (q,) = joint_map.split(action, ACTION)
     hand, units = load_hand("inspire"), inspire_units()
     entry = {joint: action[:, len(ARM) + i] for i, joint in enumerate(INSPIRE.values())}
     expected = torch.stack([units[j][0] * entry[j] + units[j][1] for j in hand.joint_names], dim=1)
     assert torch.equal(body, action[:, : len(ARM)]) and torch.allclose(q, expected)
-    assert torch.allclose(joint_map.join(body, q), action)
+    assert torch.allclose(joint_map.join(body, [q]), action)
     state = torch.cat([action, torch.full((5, 1), 7.0, dtype=torch.float64)], dim=1)  # the current, dropped
-    assert torch.allclose(joint_map.split(state, OBS_STATE)[1], q)
+    assert torch.allclose(joint_map.split(state, OBS_STATE)[1][0], q)
 
 
 def test_a_scale_that_leaves_a_joint_under_a_tenth_of_its_range_is_a_warning_naming_it(rigs, caplog):
@@ -207,7 +207,7 @@ def test_a_scale_that_leaves_a_joint_under_a_tenth_of_its_range_is_a_warning_nam
     hand = load_hand("inspire")
     frames = torch.tensor(read_columns(rigs / "arm_inspire", [ACTION])[ACTION])
     with caplog.at_level("WARNING", logger="lerobot_opfa.datasets.joint_map"):
-        joint_map.check_spans(frames, ACTION, hand.lower, hand.upper)
+        joint_map.check_spans(frames, ACTION, [(hand.lower, hand.upper)])
     warned = [r.getMessage() for r in caplog.records]
     assert len(warned) == 1 and "entry 'hand.index'" in warned[0] and "'index_mcp_flex'" in warned[0]
     assert "under a tenth" in warned[0]

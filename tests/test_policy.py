@@ -169,7 +169,8 @@ def test_fast_sampling_matches_the_plain_unet_and_sampler(n_heads):
 
     unet = tiny_unet(n_heads).eval()
     ddim = Ddim(100, 10, "squaredcos_cap_v2", 1e-4, 0.02, "sample", clip=1.0)
-    x, cond, head = torch.randn(3, 8, 5), torch.randn(3, 7), torch.tensor([0, 1, 1]) % n_heads
+    x, cond = torch.randn(3, 8, 5), torch.randn(3, 7)
+    head = torch.tensor([[0] * 5, [1] * 5, [1, 0, 1, 0, 0]]) % n_heads  # each entry's head
     t = torch.tensor([0, 42, 99])
     with torch.no_grad():
         assert torch.allclose(denoise(unet, x, films(unet, t, cond), head), unet(x, t, cond, head), atol=1e-5)
@@ -196,7 +197,8 @@ def test_fast_sampling_follows_optimiser_steps_and_loads(float16):
     if float16 and not sampler.float16:
         pytest.skip("torch has no fbgemm engine here")
     ddim = Ddim(100, 10, "squaredcos_cap_v2", 1e-4, 0.02, "sample", clip=1.0)
-    x, cond, head = torch.randn(3, 8, 5), torch.randn(3, 7), torch.tensor([0, 1, 1])
+    x, cond = torch.randn(3, 8, 5), torch.randn(3, 7)
+    head = torch.tensor([0, 1, 1])[:, None].expand(-1, 5)  # each entry's head
     atol = 2e-3 if float16 else 1e-5
 
     def both():
@@ -243,9 +245,9 @@ def test_each_action_space_maps_joints_in_and_out_with_a_mask_of_its_width(data,
     hands = OpfaEncodeJointsStep(action_space=space, embodiments=pair, hand_refs=pair, galr=galr)
     action_space = ACTION_SPACES[space]
     mask = action_space.hand_mask(hands.latent_dim, hands.embodiment_joints or [[], []])
-    width = action_space.hand_width(hands.latent_dim, hands.embodiment_joints)
-    assert mask.shape == (2, width)
+    assert mask.shape == (2, action_space.hand_width(hands.latent_dim, hands.embodiment_joints))
     for index in range(1 if space == "raw" else 2):
+        (width,) = action_space.slot_widths(hands.latent_dim, hands.embodiment_joints, [index])
         model = hands.model(index)
         q = model.sample_joints(4, generator=torch.Generator().manual_seed(index))
         rows = action_space.from_joints(hands, index, q)
@@ -254,7 +256,7 @@ def test_each_action_space_maps_joints_in_and_out_with_a_mask_of_its_width(data,
         assert rows.shape == (4, width)
         if space != "galr":
             assert torch.equal(action_space.to_joints(hands, index, rows), q)
-            assert mask[index].sum() == (width if space == "raw" else model.dof)
+            assert mask[index, :width].sum() == (width if space == "raw" else model.dof)
 
 
 # --- datasets ----------------------------------------------------------------------------------------
@@ -352,7 +354,7 @@ def test_a_galr_policy_trains_on_the_hand_states_its_decoded_actions_leave(data,
         if dataset == "merged":
             body, q = state[:, :wrist], load_hand(hand).from_universal(state[:, wrist:universal])
         else:
-            body, q = encoder.robot_map(index, simulator=False).split(state, OBS_STATE)
+            body, (q,) = encoder.robot_map(index, simulator=False).split(state, OBS_STATE)
         held = encoder.decode(index, encoder.encode(index, q))  # what the hand reaches, commanded decoded
         live = {OBS_STATE: torch.cat([body, held], dim=-1), OBS_HAND: hand}  # a frame of that hand, no action
         deployed.append(encoder(create_transition(observation=live))[TransitionKey.OBSERVATION][OBS_STATE])

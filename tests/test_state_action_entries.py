@@ -56,14 +56,14 @@ def test_state_and_action_joints_apart_split_and_join_each_in_its_units(tmp_path
     assert joint_map.body_names(ACTION) == ["dx", "dy", "dz", "dyaw"]
     control = EndEffectorDeltas(load_hand("umi"))
     state = torch.tensor([[0.0] * 12 + [-1.0], [0.0] * 12 + [1.0]], dtype=torch.float64)
-    _, jaw = joint_map.split(state, OBS_STATE)
+    _, (jaw,) = joint_map.split(state, OBS_STATE)
     assert torch.allclose(jaw[:, 0], torch.tensor([control.open, control.closed], dtype=torch.float64))
     action = torch.tensor([[0.01, 0.0, -0.02, 0.1, 0.25]], dtype=torch.float64)
-    body, jaw = joint_map.split(action, ACTION)
+    body, (jaw,) = joint_map.split(action, ACTION)
     assert torch.allclose(
         jaw[0, 0], torch.tensor(control.open + 0.25 * (control.closed - control.open)).double()
     )
-    assert torch.allclose(joint_map.join(body, jaw), action)
+    assert torch.allclose(joint_map.join(body, [jaw]), action)
 
 
 def test_a_map_that_misses_a_keys_joint_names_the_key_and_the_sections(tmp_path):

@@ -21,11 +21,16 @@ def frame_embodiments(ids, slots: int = 1):
     return rows[:, -1].long()
 
 
-def single_slot(ids):
-    """(B,) embodiments of frames with one hand slot, from (B, slots) ids: a policy with one hand slot does
-    not read a second hand's frames as its first."""
-    if ids.dim() != 2 or ids.shape[-1] != 1:
+def column_embodiments(ids, blocks: list[int]):
+    """(B, D) embodiment of each entry of a policy vector, from (B, slots) ids: `blocks` = [body width, then
+    one width per hand slot]. The body's entries are the first slot's (its robot's), a slot's entries its
+    own hand's. Empty `blocks` (a step saved before slots): every entry the first slot's."""
+    if not blocks:
+        return ids[:, :1]
+    if ids.dim() != 2 or ids.shape[-1] != len(blocks) - 1:
         raise ValueError(
-            f"{OBS_EMBODIMENT} holds {tuple(ids.shape)} ids: this policy acts for one hand per frame"
+            f"{OBS_EMBODIMENT} holds {tuple(ids.shape)} ids: this policy acts for {len(blocks) - 1} hand(s) "
+            "per frame"
         )
-    return ids[:, 0]
+    owners = [0, *range(len(blocks) - 1)]
+    return ids[:, [owner for owner, width in zip(owners, blocks, strict=True) for _ in range(width)]]

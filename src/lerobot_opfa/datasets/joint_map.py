@@ -22,8 +22,20 @@ naming every joint once (`joints` is shared by both):
 
 Its state's body entries and its action's are then what is left of each: they may differ (arm joints in
 the state, end-effector deltas in the action). A dataset whose hand entries are named after the spec's
-joints (or `<joint>.pos`) needs no file (`JointMap.named_after`). One hand per frame; a second would be a
-second list of joints here, nothing elsewhere.
+joints (or `<joint>.pos`) needs no file (`JointMap.named_after`).
+
+A robot with two hands (a G1 with Dex3 or Inspire hands, a two-arm rig) lists one slot per hand, each with
+its side, its hand and its entries (`joints`, `state_joints`, `action_joints` as above); `drop` and
+`robot_type` stay at the top. A left hand is read through the right-hand model of the same hand: the joint
+values mean the same on both sides (a flexion is a flexion), only the geometry is mirrored.
+
+    slots:
+      - side: left
+        hand: inspire
+        joints: {kLeftHandIndex: {joint: index_mcp_flex, scale: -1.47, offset: 1.47}, ...}
+      - side: right
+        hand: inspire
+        joints: {kRightHandIndex: {joint: index_mcp_flex, scale: -1.47, offset: 1.47}, ...}
 """
 
 from __future__ import annotations
@@ -70,8 +82,14 @@ class MappedJoint:
     offset: float = 0.0
 
 
+SIDES = ("left", "right")
+SLOT_FIELDS = ("side", "hand", "joints", "state_joints", "action_joints")
+
+
 @dataclass(frozen=True)
-class JointMap:
+class HandSlot:
+    """One hand of a robot: which hand, on which side, under which entries."""
+
     hand: str
     """What `load_hand` takes: a built-in name or a spec path."""
     joints: dict[str, MappedJoint]
@@ -79,6 +97,59 @@ class JointMap:
     state_joints: dict[str, MappedJoint] = field(default_factory=dict)
     action_joints: dict[str, MappedJoint] = field(default_factory=dict)
     """Entries of only the state, or only the action -> the spec joint each holds (`key_joints`)."""
+    side: str | None = None
+    """`left` or `right` (None: a one-handed robot's, the side unsaid)."""
+
+    def key_joints(self, key: str) -> dict[str, MappedJoint]:
+        """`key`'s entries ("observation.state" or "action") that hold this hand's joints."""
+        return {**self.joints, **(self.state_joints if key == OBS_STATE else self.action_joints)}
+
+    @property
+    def spec(self) -> HandSpec:
+        return load_spec(self.hand)
+
+    @classmethod
+    def from_dict(cls, raw: dict, source: str) -> HandSlot:
+        tables = ("joints", "state_joints", "action_joints")
+        if not any(raw.get(t) for t in tables):
+            raise JointMapError(
+                f"{source}: needs a mapping 'joints' of dataset entry -> spec joint (or, where the state "
+                "and the action hold the hand under different entries, 'state_joints' and 'action_joints')"
+            )
+        if not isinstance(raw.get("hand"), str):
+            raise JointMapError(f"{source}: needs 'hand', a built-in hand's name or a spec.yaml path")
+        side = raw.get("side")
+        if side is not None and side not in SIDES:
+            raise JointMapError(f"{source}: 'side' must be one of {list(SIDES)}, got {side!r}")
+        for table in tables:
+            if not isinstance(raw.get(table) or {}, dict):
+                raise JointMapError(f"{source}: '{table}' must be a mapping of dataset entry -> spec joint")
+        joints = {
+            table: {
+                str(entry): _mapped_joint(value, f"{source}: {table} entry '{entry}'")
+                for entry, value in (raw.get(table) or {}).items()
+            }
+            for table in tables
+        }
+        return cls(raw["hand"], joints["joints"], joints["state_joints"], joints["action_joints"], side)
+
+    def to_dict(self) -> dict:
+        def table(joints: dict[str, MappedJoint]) -> dict:
+            return {e: {"joint": j.joint, "scale": j.scale, "offset": j.offset} for e, j in joints.items()}
+
+        apart = {
+            name: table(joints)
+            for name, joints in (("state_joints", self.state_joints), ("action_joints", self.action_joints))
+            if joints
+        }
+        side = {} if self.side is None else {"side": self.side}
+        return {**side, "hand": self.hand, "joints": table(self.joints), **apart}
+
+
+@dataclass(frozen=True)
+class JointMap:
+    slots: tuple[HandSlot, ...]
+    """The robot's hands, one per slot, in the order the policy holds them."""
     drop: tuple[str, ...] = ()
     robot_type: str | None = None
     """The dataset `robot_type` the map is confirmed for when it names another hand (`check_robot_type`)."""
@@ -97,48 +168,55 @@ class JointMap:
             raw = read_yaml(path, "joint map")
         except YamlFileError as err:
             raise JointMapError(str(err)) from None
-        hand = raw.get("hand") if isinstance(raw, dict) else None
-        if isinstance(hand, str) and hand not in builtin_hands() and not Path(hand).is_absolute():
-            raw["hand"] = str((path.parent / hand).resolve())
+        slots = raw.get("slots") if isinstance(raw, dict) else None
+        for slot in slots if isinstance(slots, list) else [raw]:
+            hand = slot.get("hand") if isinstance(slot, dict) else None
+            if isinstance(hand, str) and hand not in builtin_hands() and not Path(hand).is_absolute():
+                slot["hand"] = str((path.parent / hand).resolve())
         return cls.from_dict(raw, str(path))
 
     @classmethod
     def from_dict(cls, raw, source: str = "joint map") -> JointMap:
-        tables = ("joints", "state_joints", "action_joints")
-        if not isinstance(raw, dict) or not any(raw.get(t) for t in tables):
-            raise JointMapError(
-                f"{source}: needs a mapping 'joints' of dataset entry -> spec joint (or, where the state "
-                "and the action hold the hand under different entries, 'state_joints' and 'action_joints')"
-            )
-        if not isinstance(raw.get("hand"), str):
-            raise JointMapError(f"{source}: needs 'hand', a built-in hand's name or a spec.yaml path")
-        for table in tables:
-            if not isinstance(raw.get(table) or {}, dict):
-                raise JointMapError(f"{source}: '{table}' must be a mapping of dataset entry -> spec joint")
-        joints = {
-            table: {
-                str(entry): _mapped_joint(value, f"{source}: {table} entry '{entry}'")
-                for entry, value in (raw.get(table) or {}).items()
-            }
-            for table in tables
-        }
-        drop = raw.get("drop") or []
-        if not isinstance(drop, list):
-            raise JointMapError(f"{source}: 'drop' must be a list of entry names")
-        unknown = set(raw) - {*tables, "hand", "drop", "robot_type", "state_names", "action_names"}
+        if not isinstance(raw, dict):
+            raise JointMapError(f"{source}: must be a mapping with 'hand' and 'joints' (or 'slots')")
+        top = {"drop", "robot_type", "state_names", "action_names"}
+        if "slots" in raw:
+            slots = raw["slots"]
+            if not isinstance(slots, list) or not slots or not all(isinstance(s, dict) for s in slots):
+                raise JointMapError(
+                    f"{source}: 'slots' must be a list of hands, each with side, hand, joints"
+                )
+            for index, slot in enumerate(slots):
+                unknown = set(slot) - set(SLOT_FIELDS)
+                if unknown:
+                    raise JointMapError(
+                        f"{source}: slot {index}: unknown field(s) {sorted(unknown)} "
+                        f"({', '.join(SLOT_FIELDS)})"
+                    )
+            parsed = tuple(HandSlot.from_dict(s, f"{source}: slot {i}") for i, s in enumerate(slots))
+            sides = [s.side for s in parsed]
+            if len(parsed) > 1 and (None in sides or len(set(sides)) < len(sides)):
+                raise JointMapError(
+                    f"{source}: each slot of a two-handed robot names its side, once: {sides}"
+                )
+            allowed = top | {"slots"}
+        else:
+            parsed = (HandSlot.from_dict(raw, source),)
+            allowed = top | set(SLOT_FIELDS) - {"side"}
+        unknown = set(raw) - allowed
         if unknown:
             raise JointMapError(
                 f"{source}: unknown field(s) {sorted(unknown)} (hand, joints, state_joints, action_joints, "
-                "drop, robot_type)"
+                "slots, drop, robot_type)"
             )
+        drop = raw.get("drop") or []
+        if not isinstance(drop, list):
+            raise JointMapError(f"{source}: 'drop' must be a list of entry names")
         robot_type = raw.get("robot_type")
         if robot_type is not None and not isinstance(robot_type, str):
             raise JointMapError(f"{source}: 'robot_type' must be a dataset's robot_type, got {robot_type!r}")
         return cls(
-            hand=raw["hand"],
-            joints=joints["joints"],
-            state_joints=joints["state_joints"],
-            action_joints=joints["action_joints"],
+            slots=parsed,
             drop=tuple(map(str, drop)),
             robot_type=robot_type,
             source=source,
@@ -147,20 +225,12 @@ class JointMap:
         )
 
     def to_dict(self) -> dict:
-        """What a checkpoint or a merged dataset saves (with the names it is bound to)."""
-
-        def table(joints: dict[str, MappedJoint]) -> dict:
-            return {e: {"joint": j.joint, "scale": j.scale, "offset": j.offset} for e, j in joints.items()}
-
-        apart = {
-            name: table(joints)
-            for name, joints in (("state_joints", self.state_joints), ("action_joints", self.action_joints))
-            if joints
-        }
+        """What a checkpoint or a merged dataset saves (with the names it is bound to); a one-handed robot's
+        map in the one-hand form."""
+        one = len(self.slots) == 1 and self.slots[0].side is None
+        hands = self.slots[0].to_dict() if one else {"slots": [s.to_dict() for s in self.slots]}
         return {
-            "hand": self.hand,
-            "joints": table(self.joints),
-            **apart,
+            **hands,
             "drop": list(self.drop),
             **({"robot_type": self.robot_type} if self.robot_type is not None else {}),
             "state_names": list(self.state_names),
@@ -173,41 +243,31 @@ class JointMap:
         in the spec's units."""
         entries = {**{joint_of(n): n for n in action_names}, **{n: n for n in action_names}}
         joints = {entries.get(j, j): MappedJoint(j) for j in spec.actuated_joints}
-        return cls(hand_ref(spec), joints, source=f"hand '{spec.name}'").bind(state_names, action_names)
+        slot = HandSlot(hand_ref(spec), joints)
+        return cls((slot,), source=f"hand '{spec.name}'").bind(state_names, action_names)
+
+    @property
+    def hands(self) -> list[str]:
+        """Each slot's hand (what `load_hand` takes)."""
+        return [slot.hand for slot in self.slots]
+
+    def with_hand(self, old: str, new: str) -> JointMap:
+        """This map with the slots of hand reference `old` pointing at `new` (a user hand unpacked
+        elsewhere)."""
+        slots = tuple(replace(s, hand=new) if s.hand == old else s for s in self.slots)
+        return replace(self, slots=slots, _columns={})
 
     # --- binding to a robot's entries -----------------------------------------------------------------
     def bind(self, state_names: list[str], action_names: list[str]) -> JointMap:
-        """This map checked against a robot's (a dataset's) state and action entries and the hand's spec."""
+        """This map checked against a robot's (a dataset's) state and action entries and the hands' specs."""
         state, action = list(map(str, state_names)), list(map(str, action_names))
-        spec = load_spec(self.hand)
-        for key, names in ((OBS_STATE, state), (ACTION, action)):
-            for entry in self.key_joints(key):
-                if entry not in names:
-                    near = difflib.get_close_matches(entry, names, n=3)
-                    raise JointMapError(
-                        f"{self.source}: entry {entry!r} is not in the dataset's {key}"
-                        + (
-                            f" (closest: {', '.join(map(repr, near))})"
-                            if near
-                            else f" ({len(names)} entries: {names[:8]} ...)"
-                        )
-                        + (
-                            "; an entry of only the state or only the action goes under 'state_joints' or "
-                            "'action_joints'"
-                            if entry in self.joints
-                            else ""
-                        )
-                    )
-            held = [j.joint for j in self.key_joints(key).values()]
-            unknown = [j for j in held if j not in spec.joints]
-            twice = sorted({j for j in held if held.count(j) > 1})
-            missing = [j for j in spec.actuated_joints if j not in held]
-            if unknown or twice or missing:
-                raise JointMapError(
-                    f"{self.source}: must name each joint of hand '{spec.name}' once in {key} "
-                    f"({', '.join(spec.actuated_joints)}): unknown {unknown}, twice {twice}, "
-                    f"missing {missing}"
-                )
+        for slot in self.slots:
+            self._bind_slot(slot, state, action)
+        for key in (OBS_STATE, ACTION):
+            claimed = [e for slot in self.slots for e in slot.key_joints(key)]
+            twice = sorted({e for e in claimed if claimed.count(e) > 1})
+            if twice:
+                raise JointMapError(f"{self.source}: entries {twice} are given to two hand slots in {key}")
         for entry in self.drop:
             if entry in self.key_joints(OBS_STATE) or entry in action:
                 raise JointMapError(
@@ -222,104 +282,149 @@ class JointMap:
                 raise JointMapError(f"{self.source}: drop lists '{entry}', which is not in observation.state")
         return replace(self, state_names=tuple(state), action_names=tuple(action), _columns={})
 
+    def _bind_slot(self, slot: HandSlot, state: list[str], action: list[str]) -> None:
+        spec = slot.spec
+        where = self.source + (f" ({slot.side} hand)" if slot.side else "")
+        for key, names in ((OBS_STATE, state), (ACTION, action)):
+            for entry in slot.key_joints(key):
+                if entry not in names:
+                    near = difflib.get_close_matches(entry, names, n=3)
+                    raise JointMapError(
+                        f"{where}: entry {entry!r} is not in the dataset's {key}"
+                        + (
+                            f" (closest: {', '.join(map(repr, near))})"
+                            if near
+                            else f" ({len(names)} entries: {names[:8]} ...)"
+                        )
+                        + (
+                            "; an entry of only the state or only the action goes under 'state_joints' or "
+                            "'action_joints'"
+                            if entry in slot.joints
+                            else ""
+                        )
+                    )
+            held = [j.joint for j in slot.key_joints(key).values()]
+            unknown = [j for j in held if j not in spec.joints]
+            twice = sorted({j for j in held if held.count(j) > 1})
+            missing = [j for j in spec.actuated_joints if j not in held]
+            if unknown or twice or missing:
+                raise JointMapError(
+                    f"{where}: must name each joint of hand '{spec.name}' once in {key} "
+                    f"({', '.join(spec.actuated_joints)}): unknown {unknown}, twice {twice}, "
+                    f"missing {missing}"
+                )
+
     def key_joints(self, key: str) -> dict[str, MappedJoint]:
-        """`key`'s entries ("observation.state" or "action") that hold the hand's joints."""
-        return {**self.joints, **(self.state_joints if key == OBS_STATE else self.action_joints)}
+        """`key`'s entries ("observation.state" or "action") that hold a hand's joints, of every slot."""
+        return {e: j for slot in self.slots for e, j in slot.key_joints(key).items()}
 
     def check_robot_type(self, robot_type: str | None) -> None:
-        """Refuses a map for another hand than the one the dataset's `robot_type` names (`inspire`, or a word
+        """Refuses a map for other hands than the one the dataset's `robot_type` names (`inspire`, or a word
         of `arm_inspire`), unless the map confirms that robot_type: the policy would learn the wrong hand
         without a word."""
-        named, hand = hands_named_in(robot_type), self.spec.name
-        if not named or hand in named or self.robot_type == robot_type:
+        named, hands = hands_named_in(robot_type), [slot.spec.name for slot in self.slots]
+        if not named or set(hands) & set(named) or self.robot_type == robot_type:
             return
-        other = max(named, key=len)  # `inspire_tactile` rather than the `inspire` inside it
+        other, hand = max(named, key=len), hands[0]  # `inspire_tactile` rather than the `inspire` inside it
         raise JointMapError(
             f"{self.source}: maps hand '{hand}', but the dataset's robot_type '{robot_type}' names hand "
             f"'{other}'; use a map for '{other}', or, if this robot does carry '{hand}', confirm it with the "
             f"line `robot_type: {robot_type}` in the map"
         )
 
-    def check_spans(self, x: torch.Tensor, key: str, lower: torch.Tensor, upper: torch.Tensor) -> None:
-        """Refuses a scale that squeezes a joint into less than `SPAN_FRACTION` of its range (`lower`,
-        `upper`: the hand's limits in spec order) while its entry as recorded spans more, within those
-        limits: a degrees scale on entries already in radians, which the limit check lets through. Any other
-        scaled joint that moves over less than `SPAN_FRACTION` of its range is a warning naming it: a scale
-        too small, or a joint the demos barely move."""
-        names, by_joint = self.names(key), {j.joint: (e, j) for e, j in self.key_joints(key).items()}
+    def check_spans(self, x: torch.Tensor, key: str, limits: list[tuple[torch.Tensor, torch.Tensor]]) -> None:
+        """Refuses a scale that squeezes a joint into less than `SPAN_FRACTION` of its range (`limits`: per
+        slot, the hand's lower and upper limits in spec order) while its entry as recorded spans more, within
+        those limits: a degrees scale on entries already in radians, which the limit check lets through. Any
+        other scaled joint that moves over less than `SPAN_FRACTION` of its range is a warning naming it: a
+        scale too small, or a joint the demos barely move."""
+        names = self.names(key)
         x = x.detach().to("cpu", torch.float64).reshape(-1, x.shape[-1])
         if not len(x):
             return
-        for i, joint in enumerate(self.spec.actuated_joints):
-            entry, mapped = by_joint[joint]
-            raw, low, high = x[:, names.index(entry)], float(lower[i]), float(upper[i])
-            width, recorded = high - low, float(raw.max() - raw.min())
-            span = abs(mapped.scale) * recorded
-            within = fits_limits((float(raw.min()), float(raw.max())), (low, high))
-            if mapped.scale != 1 and span < SPAN_FRACTION * width <= recorded and within:
-                raise JointMapError(
-                    f"{self.source}: entry {entry!r} with scale {mapped.scale:g} moves joint '{joint}' over "
-                    f"{span:.3g} of its range {width:.3g} ([{low:.3g}, {high:.3g}]) in {key}, while as "
-                    f"recorded it spans {recorded:.3g} within those limits: it is in the spec's units "
-                    "already (radians, metres); use scale 1, or invert the scale if it is the wrong way round"
-                )
-            if mapped.scale != 1 and span < SPAN_FRACTION * width:
-                logger.warning(
-                    "%s: entry %r with scale %g moves joint '%s' over %.3g of its range %.3g in %s (under a "
-                    "tenth): check the scale, or that the demos move this joint",
-                    self.source, entry, mapped.scale, joint, span, width, key,
-                )  # fmt: skip
+        for slot, (lower, upper) in zip(self.slots, limits, strict=True):
+            by_joint = {j.joint: (e, j) for e, j in slot.key_joints(key).items()}
+            for i, joint in enumerate(slot.spec.actuated_joints):
+                entry, mapped = by_joint[joint]
+                raw, low, high = x[:, names.index(entry)], float(lower[i]), float(upper[i])
+                width, recorded = high - low, float(raw.max() - raw.min())
+                span = abs(mapped.scale) * recorded
+                within = fits_limits((float(raw.min()), float(raw.max())), (low, high))
+                if mapped.scale != 1 and span < SPAN_FRACTION * width <= recorded and within:
+                    raise JointMapError(
+                        f"{self.source}: entry {entry!r} with scale {mapped.scale:g} moves joint '{joint}' "
+                        f"over {span:.3g} of its range {width:.3g} ([{low:.3g}, {high:.3g}]) in {key}, while "
+                        f"as recorded it spans {recorded:.3g} within those limits: it is in the spec's units "
+                        "already (radians, metres); use scale 1, or invert the scale if it is the wrong way "
+                        "round"
+                    )
+                if mapped.scale != 1 and span < SPAN_FRACTION * width:
+                    logger.warning(
+                        "%s: entry %r with scale %g moves joint '%s' over %.3g of its range %.3g in %s "
+                        "(under a tenth): check the scale, or that the demos move this joint",
+                        self.source, entry, mapped.scale, joint, span, width, key,
+                    )  # fmt: skip
 
     def body_names(self, key: str) -> list[str]:
-        """`key`'s entries besides the hand's joints (and the dropped ones), in its order: the policy models
+        """`key`'s entries besides the hands' joints (and the dropped ones), in its order: the policy models
         them as they are."""
         joints = self.key_joints(key)
         return [n for n in self.names(key) if n not in joints and n not in self.drop]
 
-    @property
-    def spec(self) -> HandSpec:
-        return load_spec(self.hand)
+    def entry_noise(self, key: str, body_noise: float, joint_noise: list[torch.Tensor]) -> torch.Tensor:
+        """(entries,) physical noise of each of `key`'s entries in the robot's units: `body_noise` for a
+        body entry, the slot's `joint_noise` (per joint in spec order, its units) over the entry's scale."""
+        names, noise = self.names(key), torch.full((len(self.names(key)),), body_noise, dtype=torch.float64)
+        for slot, per_joint in zip(self.slots, joint_noise, strict=True):
+            order = slot.spec.actuated_joints
+            for entry, mapped in slot.key_joints(key).items():
+                noise[names.index(entry)] = float(per_joint[order.index(mapped.joint)]) / abs(mapped.scale)
+        return noise
 
-    def _indices(self, key: str) -> tuple[list[int], list[int], torch.Tensor, torch.Tensor]:
-        """(body columns, joint columns in spec order, scale, offset) of `key`'s vectors."""
+    def _indices(self, key: str) -> tuple[list[int], list[tuple[list[int], torch.Tensor, torch.Tensor]]]:
+        """(body columns, per slot: its joint columns in spec order, scale, offset) of `key`'s vectors."""
         if key not in self._columns:
             if not self.action_names:
                 raise JointMapError(f"{self.source}: not bound to a robot's entries (JointMap.bind)")
-            names = self.names(key)
-            by_joint = {j.joint: (e, j) for e, j in self.key_joints(key).items()}
-            order = [by_joint[j] for j in self.spec.actuated_joints]
-            self._columns[key] = (
-                [names.index(n) for n in self.body_names(key)],
-                [names.index(e) for e, _ in order],
-                torch.tensor([j.scale for _, j in order], dtype=torch.float64),
-                torch.tensor([j.offset for _, j in order], dtype=torch.float64),
-            )
+            names, slots = self.names(key), []
+            for slot in self.slots:
+                by_joint = {j.joint: (e, j) for e, j in slot.key_joints(key).items()}
+                order = [by_joint[j] for j in slot.spec.actuated_joints]
+                slots.append((
+                    [names.index(e) for e, _ in order],
+                    torch.tensor([j.scale for _, j in order], dtype=torch.float64),
+                    torch.tensor([j.offset for _, j in order], dtype=torch.float64),
+                ))  # fmt: skip
+            self._columns[key] = ([names.index(n) for n in self.body_names(key)], slots)
         return self._columns[key]
 
     def names(self, key: str) -> list[str]:
         """The robot's entries of `key` ("observation.state" or "action")."""
         return list(self.state_names if key == OBS_STATE else self.action_names)
 
-    def split(self, x: torch.Tensor, key: str) -> tuple[torch.Tensor, torch.Tensor]:
-        """(..., robot entries) of `key` ("observation.state" or "action") -> (body entries, the hand's joints
-        in spec order and units)."""
+    def split(self, x: torch.Tensor, key: str) -> tuple[torch.Tensor, list[torch.Tensor]]:
+        """(..., robot entries) of `key` ("observation.state" or "action") -> (body entries, per slot the
+        hand's joints in spec order and units)."""
         names = self.names(key)
         if x.shape[-1] != len(names):
             raise ValueError(
                 f"{key} has {x.shape[-1]} entries; the robot this policy was trained on has {len(names)} "
                 f"({self.source}: {', '.join(names[:6])} ...)"
             )
-        body, columns, scale, offset = self._indices(key)
-        q = x[..., columns] * scale.to(x.device, x.dtype) + offset.to(x.device, x.dtype)
-        return x[..., body], q
+        body, slots = self._indices(key)
+        qs = [x[..., c] * s.to(x.device, x.dtype) + o.to(x.device, x.dtype) for c, s, o in slots]
+        return x[..., body], qs
 
-    def join(self, body: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
-        """(body entries, joints in spec order and units) -> (..., action entries) in the robot's order and
-        units: the inverse of `split` on actions."""
-        columns_body, columns, scale, offset = self._indices(ACTION)
+    def join(self, body: torch.Tensor, qs: list[torch.Tensor]) -> torch.Tensor:
+        """(body entries, per slot its joints in spec order and units) -> (..., action entries) in the
+        robot's order and units: the inverse of `split` on actions."""
+        columns_body, slots = self._indices(ACTION)
         out = body.new_empty((*body.shape[:-1], len(self.action_names)))
         out[..., columns_body] = body
-        out[..., columns] = ((q - offset.to(q.device, q.dtype)) / scale.to(q.device, q.dtype)).to(out.dtype)
+        for q, (columns, scale, offset) in zip(qs, slots, strict=True):
+            out[..., columns] = ((q - offset.to(q.device, q.dtype)) / scale.to(q.device, q.dtype)).to(
+                out.dtype
+            )
         return out
 
 

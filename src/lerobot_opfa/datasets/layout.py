@@ -51,6 +51,8 @@ class DatasetLayout:
     action_body_names: list[str] | None = None
     """The action's body entries where they differ from the state's (end-effector deltas against arm
     joints); None: the same."""
+    robots: list[list[int]] = field(default_factory=list)
+    """Per joint map (a robot), the embodiment each of its hand slots holds."""
 
 
 def feature_names(features: dict, key: str) -> list[str]:
@@ -94,7 +96,7 @@ def identify_hand(
             "robot_type to the hand's name"
         )
     ranges = recorded_ranges(root, names)
-    closest, maps = [], []
+    closest, sides = [], {}
     for side, entries in hand_sides(names).items():
         hand, *alternatives = named or closest_hands(entries, specs, ranges)
         missing = [j for j in hand.actuated_joints if j not in joints]
@@ -104,14 +106,14 @@ def identify_hand(
             + ", ".join(repr(s.name) for s in [hand, *alternatives])
             + f" ({len(hand.joints)} joints; missing {missing}, unknown {unknown})"
         )
-        maps.append(map_to_write(entries, hand, alternatives, ranges, side))
+        sides[side] = (entries, hand, alternatives)
     whose = f"hand '{robot_type}'" if named else "any registered hand"
     raise JointNameError(
         f"the state/action entries ({len(names)}: {', '.join(map(repr, names[:4]))}, ...) are not named "
         f"after the joints of {whose}; closest by joint structure and names: {'; '.join(closest)}. "
         "Write a joint map (docs/usage.md) and pass it "
         "(merge: --joint-maps FILE; training: --policy.joint_map=FILE); a start, to check line by line:\n"
-        + "\n\n".join(maps)
+        + map_to_write(sides, ranges)
     )
 
 
@@ -205,22 +207,27 @@ def read_layout(
         refs = [hand_ref(specs[h]) for h in embodiments]
         maps = [_recorded_map(record, specs[h], wrist) for h in embodiments]
         fingerprint = record.get("galr_fingerprint")
-        return DatasetLayout("merged", embodiments, refs, wrist, maps, len(rest), fingerprint)
+        robots = [[i] for i in range(len(embodiments))]
+        return DatasetLayout("merged", embodiments, refs, wrist, maps, len(rest), fingerprint, robots=robots)
     if joint_map is None:
         spec = identify_hand(names, robot_type, candidates, root)
         joint_map = JointMap.named_after(spec, names, actions)
     else:
         joint_map = joint_map.bind(names, actions)
         joint_map.check_robot_type(robot_type)
-        spec = joint_map.spec
+    specs = {}
+    for slot in joint_map.slots:
+        specs.setdefault(slot.spec.name, slot.spec)
+    embodiments = list(specs)
     state_body, action_body = joint_map.body_names(OBS_STATE), joint_map.body_names(ACTION)
     return DatasetLayout(
         "native",
-        [spec.name],
-        [hand_ref(spec)],
+        embodiments,
+        [hand_ref(spec) for spec in specs.values()],
         state_body,
         [joint_map],
         action_body_names=None if action_body == state_body else action_body,
+        robots=[[embodiments.index(slot.spec.name) for slot in joint_map.slots]],
     )
 
 

@@ -84,6 +84,11 @@ def _open(root: Path, hands: list[str] | None, joint_maps: list[JointMap], bound
     layout = read_layout(meta.features, meta.robot_type, root, hands, joint_map)
     if layout.kind != "native":
         raise ValueError(f"{root} is already a merged dataset; merge the per-hand datasets it came from")
+    if len(slots := layout.joint_maps[0].slots) > 1:
+        raise ValueError(
+            f"{root}: a robot with {len(slots)} hands; `dataset merge` merges one-handed robots (train on a "
+            "two-handed robot's dataset alone: --policy.joint_map)"
+        )
     if layout.action_body_names is not None:
         raise ValueError(
             f"{root}: its action's body entries {layout.action_body_names} are not its state's "
@@ -236,8 +241,8 @@ def _latent_noise_floor(galr, embodiments: list[str], state: torch.Tensor, ids: 
     """(d,): what joint noise moves each entry of z by, over all hands' frames (`statistics.noise_floor`)."""
     joints = n_wrist + len(UNIVERSAL_JOINT_NAMES)
 
-    def encode(rows: torch.Tensor, row_ids: torch.Tensor) -> torch.Tensor:
-        return encode_universal(galr, embodiments, rows[:, n_wrist:], row_ids)
+    def encode(rows: torch.Tensor, kept: torch.Tensor) -> torch.Tensor:
+        return encode_universal(galr, embodiments, rows[:, n_wrist:], ids[kept])
 
     noise = raw_noise(n_wrist, list(UNIVERSAL_JOINT_NAMES))
     pooled = torch.ones(galr.config.latent_dim, dtype=torch.bool)
@@ -272,7 +277,7 @@ def _check_limits(source: _Input, galr) -> None:
     anything is written: latents of values out of range would be cached without a word)."""
     hand, joint_map = _hand(source, galr), source.layout.joint_maps[0]
     for key, values in read_columns(source.root, [OBS_STATE, ACTION]).items():
-        body, q = joint_map.split(torch.tensor(values, dtype=torch.float64), key)
+        body, (q,) = joint_map.split(torch.tensor(values, dtype=torch.float64), key)
         bad = ~body.isfinite()
         if bad.any():
             entry = joint_map.body_names(key)[int(bad.any(0).nonzero()[0])]
@@ -281,7 +286,7 @@ def _check_limits(source: _Input, galr) -> None:
                 f"frames, first in entry '{entry}'"
             )
         hand.check_within_limits(q, f"{source.root} ({key}, through {joint_map.source})")
-        joint_map.check_spans(torch.tensor(values), key, hand.lower, hand.upper)
+        joint_map.check_spans(torch.tensor(values), key, [(hand.lower, hand.upper)])
 
 
 CAMERA_DTYPES = ("image", "video")
@@ -364,7 +369,7 @@ def _append(
         position = {int(index): i for i, index in enumerate(frames.hf_dataset["index"])}
 
     def to_layout(values: np.ndarray, key: str) -> np.ndarray:
-        body, q = joint_map.split(torch.tensor(values, dtype=torch.float64), key)
+        body, (q,) = joint_map.split(torch.tensor(values, dtype=torch.float64), key)
         q = q.float()
         parts = [body.numpy(), hand.to_universal(q).cpu().numpy()]
         if galr is not None:

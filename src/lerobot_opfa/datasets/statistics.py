@@ -60,14 +60,22 @@ def per_embodiment(
 def column_statistics(
     values: torch.Tensor, ids: torch.Tensor, n_embodiments: int, reductions: dict = REDUCTIONS
 ) -> dict[str, torch.Tensor]:
-    """`count` (E,), then per statistic `name` (E, D) per embodiment and `all_name` (D,) over all rows."""
-    out = {"count": torch.bincount(ids, minlength=n_embodiments)}
+    """`count` (E,), then per statistic `name` (E, D) per embodiment and `all_name` (D,) over all rows.
+    `ids`: each row's embodiment (N,), or each entry's (N, D) (a two-handed robot's slots,
+    `features.column_embodiments`), counted by the first entry's."""
+    columns = ids if ids.dim() == 2 else ids[:, None].expand(-1, values.shape[-1])
+    groups = {(): list(range(values.shape[-1]))} if ids.dim() == 1 else {}
+    for entry, column in enumerate(columns.T if ids.dim() == 2 else []):  # one reduction per set of rows
+        groups.setdefault(tuple(column.tolist()), []).append(entry)
+    out = {"count": torch.bincount(columns[:, 0], minlength=n_embodiments)}
     for name, (reduce, empty) in reductions.items():
         table = torch.full((n_embodiments, values.shape[-1]), empty, dtype=values.dtype)
-        for e in range(n_embodiments):
-            rows = values[ids == e]
-            if len(rows):
-                table[e] = reduce(rows)
+        for entries in groups.values():
+            column = columns[:, entries[0]]
+            for e in range(n_embodiments):
+                rows = values[column == e][:, entries]
+                if len(rows):
+                    table[e, entries] = reduce(rows)
         out[name], out[f"all_{name}"] = table, reduce(values)
     return out
 
@@ -89,14 +97,15 @@ def noise_floor(
     pooled: torch.Tensor,
 ) -> torch.Tensor:
     """(E, D): root-mean-square change of each encoded entry when every raw entry of `rows` (F, R) moves
-    by its physical noise `noise` (R,) with a random sign. `encode(rows, ids)` maps raw rows to the
-    encoded space (so the floor of z is what joint noise does to the GaLR latent); `encoded` (F, D) is
-    `rows` already mapped, so only the noisy rows are encoded."""
+    by its physical noise `noise` (R,) with a random sign. `encode(rows, kept)` maps raw rows (those of
+    indices `kept`) to the encoded space (so the floor of z is what joint noise does to the GaLR latent);
+    `encoded` (F, D) is `rows` already mapped, so only the noisy rows are encoded. `ids`: as
+    `column_statistics` takes them."""
     generator = torch.Generator().manual_seed(0)
     keep = torch.randperm(len(rows), generator=generator)[:NOISE_SAMPLES]
     rows, ids = rows[keep], ids[keep]
     signs = torch.randint(0, 2, rows.shape, generator=generator).to(rows) * 2 - 1
-    delta = encode(rows + signs * noise, ids) - encoded[keep]
+    delta = encode(rows + signs * noise, keep) - encoded[keep]
     return per_embodiment(delta, ids, n_embodiments, pooled, lambda d: d.pow(2).mean(0).sqrt(), 0.0)
 
 

@@ -56,17 +56,28 @@ class ActionSpace:
     """The default deviation of the training noise on the hand's part of the normalised state: how far a
     deployed hand state may lie from every demonstrated one (`OpfaConfig.state_hand_noise`)."""
 
-    def check_embodiments(self, embodiments: list[str]) -> None:
-        """Raises when this space cannot train on these embodiments together."""
+    def check_robots(self, robots: list[list[int]], embodiments: list[str]) -> None:
+        """Raises when this space cannot train on these robots (per robot, its slots' embodiments)
+        together."""
 
     def hand_width(self, latent_dim: int | None, embodiment_joints: list[list[str]]) -> int:
+        """Width of one hand slot's part of a policy vector (the same for every hand)."""
         raise NotImplementedError
 
-    def hand_names(self, hands: Hands) -> list[str]:
+    def slot_widths(
+        self, latent_dim: int | None, embodiment_joints: list[list[str]], robot: list[int]
+    ) -> list[int]:
+        """Width of each hand slot's part of a policy vector, for a robot whose slots hold embodiments
+        `robot`."""
+        return [self.hand_width(latent_dim, embodiment_joints)] * len(robot)
+
+    def hand_names(self, hands: Hands, index: int) -> list[str]:
+        """The entry names of a slot holding embodiment `index`."""
         raise NotImplementedError
 
     def hand_mask(self, latent_dim: int | None, embodiment_joints: list[list[str]]) -> Tensor:
-        """(embodiments, hand width): 1 where an embodiment's entry means something (its loss counts)."""
+        """(embodiments, hand width): 1 where an embodiment's entry means something (its loss counts); a
+        slot narrower than the widest reads its first columns."""
         return torch.ones(len(embodiment_joints), self.hand_width(latent_dim, embodiment_joints))
 
     def n_heads(self, n_embodiments: int) -> int:
@@ -101,7 +112,7 @@ class GalrSpace(ActionSpace):
             raise ValueError("action_space 'galr' needs the GaLR's latent size")
         return latent_dim
 
-    def hand_names(self, hands):
+    def hand_names(self, hands, index):
         return latent_names(hands.latent_dim)
 
     def merged_columns(self, n_wrist, latent_dim):
@@ -124,18 +135,22 @@ class GalrSpace(ActionSpace):
 class RawSpace(ActionSpace):
     name = "raw"
 
-    def check_embodiments(self, embodiments):
-        if len(embodiments) != 1:
+    def check_robots(self, robots, embodiments):
+        if len(robots) != 1:
+            hands = [[embodiments[e] for e in robot] for robot in robots]
             raise ValueError(
-                f"action_space 'raw' trains one embodiment; got {embodiments}. "
+                f"action_space 'raw' trains one robot; got {len(robots)} ({hands}). "
                 "Use 'per_embodiment' (naive co-training) or 'galr' for several"
             )
 
     def hand_width(self, latent_dim, embodiment_joints):
-        return len(embodiment_joints[0])
+        return max(map(len, embodiment_joints))
 
-    def hand_names(self, hands):
-        return hands.model(0).joint_names
+    def slot_widths(self, latent_dim, embodiment_joints, robot):
+        return [len(embodiment_joints[e]) for e in robot]
+
+    def hand_names(self, hands, index):
+        return hands.model(index).joint_names
 
     def from_joints(self, hands, index, q):
         return q
@@ -153,7 +168,7 @@ class PerEmbodimentSpace(ActionSpace):
     def hand_width(self, latent_dim, embodiment_joints):
         return len(UNIVERSAL_JOINT_NAMES)
 
-    def hand_names(self, hands):
+    def hand_names(self, hands, index):
         return list(UNIVERSAL_JOINT_NAMES)
 
     def hand_mask(self, latent_dim, embodiment_joints):

@@ -73,6 +73,9 @@ class OpfaConfig(PreTrainedConfig):
     """Hands trained on; a frame's embodiment id indexes this list."""
     embodiment_joints: list[list[str]] = field(default_factory=list)
     """Per embodiment, the universal joints its actuated joints map to (a checkpoint needs no hand model)."""
+    robots: list[list[int]] = field(default_factory=list)
+    """Per robot trained on, the embodiment each of its hand slots holds (two for a two-handed robot);
+    empty (saved before): one one-handed robot per embodiment."""
     wrist_names: list[str] = field(default_factory=list)
     """Leading state entries that are not hand joints (the wrist pose, an arm's joints): the body."""
     action_body_names: list[str] | None = None
@@ -201,7 +204,7 @@ class OpfaConfig(PreTrainedConfig):
         if not 0 < self.num_inference_steps <= self.num_train_timesteps:
             raise ValueError("need 0 < num_inference_steps <= num_train_timesteps")
         if self.embodiments:
-            self.space.check_embodiments(self.embodiments)
+            self.space.check_robots(self.slot_robots, self.embodiments)
 
     @property
     def space(self) -> ActionSpace:
@@ -212,9 +215,24 @@ class OpfaConfig(PreTrainedConfig):
         return self.wrist_names if self.action_body_names is None else self.action_body_names
 
     @property
+    def slot_robots(self) -> list[list[int]]:
+        """`robots`, or for a policy saved before it, one one-handed robot per embodiment."""
+        return self.robots or [[index] for index in range(len(self.embodiments))]
+
+    @property
+    def slot_widths(self) -> list[int]:
+        """Width of each hand slot's part of the policy's state and action."""
+        return self.space.slot_widths(self.latent_dim, self.embodiment_joints, self.slot_robots[0])
+
+    def blocks(self, key: str) -> list[int]:
+        """The policy's `key` ("observation.state" or "action") in parts: its body, then each hand slot."""
+        body = self.wrist_names if key == OBS_STATE else self.action_body
+        return [len(body), *self.slot_widths]
+
+    @property
     def state_width(self) -> int:
-        """Width of the policy's state: the body's entries, then the space's."""
-        return len(self.wrist_names) + self.space.hand_width(self.latent_dim, self.embodiment_joints)
+        """Width of the policy's state: the body's entries, then each hand slot's."""
+        return sum(self.blocks(OBS_STATE))
 
     @property
     def state_encoder_width(self) -> int:
@@ -224,7 +242,7 @@ class OpfaConfig(PreTrainedConfig):
     @property
     def action_width(self) -> int:
         """Width of the policy's action: the action's body entries, then the space's."""
-        return len(self.action_body) + self.space.hand_width(self.latent_dim, self.embodiment_joints)
+        return sum(self.blocks(ACTION))
 
     @property
     def drop_n_last_frames(self) -> int:

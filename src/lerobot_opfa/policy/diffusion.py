@@ -102,7 +102,7 @@ class ConditionalUnet1d(nn.Module):
         self.film_blocks = tuple(m for m in self.modules() if isinstance(m, FiLMResidualBlock))
 
     def forward(self, x: Tensor, t: Tensor, cond: Tensor, head: Tensor | None = None) -> Tensor:
-        """x (B, T, A) noisy chunk, t (B,) steps, cond (B, C), head (B,) -> (B, T, A)."""
+        """x (B, T, A) noisy chunk, t (B,) steps, cond (B, C), head (B, A) each entry's head -> (B, T, A)."""
         cond = torch.cat([self.step_embedding(t), cond], dim=-1)
         h, skips = x.transpose(1, 2), []
         for first, second, down in self.down:
@@ -115,7 +115,10 @@ class ConditionalUnet1d(nn.Module):
             h = up(second(first(torch.cat([h, skips.pop()], dim=1), cond), cond))
         out = self.heads(self.final(h))
         if self.n_heads > 1:
-            out = out.view(len(x), self.n_heads, self.action_dim, -1)[torch.arange(len(x)), head]
+            out = out.view(len(x), self.n_heads, self.action_dim, -1)
+            out = out.gather(1, head.view(len(x), 1, self.action_dim, 1).expand(-1, 1, -1, out.shape[-1]))[
+                :, 0
+            ]
         return out.transpose(1, 2)
 
 

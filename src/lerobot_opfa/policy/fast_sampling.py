@@ -106,8 +106,8 @@ def denoise(unet: ConditionalUnet1d, x: Tensor, step_films: list[Tensor], head: 
         h = conv_transpose(film_block(h, next(step_films), second), up)
     out = conv(conv_block(h, unet.final), unet.heads)
     if unet.n_heads > 1:
-        out = out.view(*out.shape[:2], unet.n_heads, unet.action_dim)  # each row's own head:
-        index = head.view(-1, 1, 1, 1).expand(-1, out.shape[1], 1, unet.action_dim)
+        out = out.view(*out.shape[:2], unet.n_heads, unet.action_dim)  # each entry's own head:
+        index = head.view(len(out), 1, 1, unet.action_dim).expand(-1, out.shape[1], 1, -1)
         out = out.gather(2, index).squeeze(2)
     return out
 

@@ -119,8 +119,11 @@ class _HandSpace:
     same."""
     galr_config: dict | None = None
     joint_maps: list[dict] = field(default_factory=list)
-    """Per embodiment, how its robot's vectors hold the body entries and the hand's joints (a bound
-    `JointMap` as a dict); a step saved before: the body entries, then the joints in spec order."""
+    """Per robot, how its vectors hold the body entries and each hand slot's joints (a bound `JointMap` as
+    a dict); a step saved before: the body entries, then the joints in spec order."""
+    robots: list[list[int]] = field(default_factory=list)
+    """Per robot (joint map), the embodiment each of its hand slots holds; empty (saved before): one
+    one-handed robot per embodiment."""
     link: str = ""
     """Read from checkpoints saved before LeRobot paired the steps (they matched by this id); unused."""
     galr: Galr | None = field(default=None, repr=False)
@@ -135,16 +138,22 @@ class _HandSpace:
             self.embodiment_joints = [load_spec(ref).universal_names for ref in self.hand_refs]
         if not self.joint_maps:
             self.joint_maps = [self._spec_order_map(ref).to_dict() for ref in self.hand_refs]
+        if not self.robots:
+            self.robots = [[index] for index in range(len(self.embodiments))]
         self._bind_maps()
         self._hands: dict[int, HandModel] = {}
         self._latent_caches: dict[int, LatentCache] = {}
 
     def _bind_maps(self) -> None:
         self.maps = [
-            JointMap.from_dict(m, f"the joint map of '{e}'")
-            for m, e in zip(self.joint_maps, self.embodiments, strict=True)
+            JointMap.from_dict(m, f"the joint map of '{self.robot_name(r)}'")
+            for r, m in enumerate(self.joint_maps)
         ]
         self._simulator_maps: dict[int, JointMap] = {}
+
+    def robot_name(self, robot: int) -> str:
+        """A robot by its hands: `inspire`, or `inspire+xhand` for two."""
+        return "+".join(self.embodiments[e] for e in self.robots[robot])
 
     def _spec_order_map(self, ref: str, joint_names: list[str] | None = None) -> JointMap:
         spec = load_spec(ref)
@@ -156,21 +165,37 @@ class _HandSpace:
         """Body entries of the policy's `key` ("observation.state" or "action")."""
         return self.wrist_dim if key == OBS_STATE or self.action_wrist_dim is None else self.action_wrist_dim
 
-    def robot_map(self, index: int, simulator: bool) -> JointMap:
-        """Embodiment `index`'s joint map for frames of the trained robot, or of the simulator (the body
+    def robot_map(self, robot: int, simulator: bool) -> JointMap:
+        """Robot `robot`'s joint map for its frames, or for the simulator's of its one hand (the body
         entries, then the joints in spec order: the identity)."""
         if not simulator:
-            return self.maps[index]
-        if index not in self._simulator_maps:
-            self._simulator_maps[index] = self._spec_order_map(self.hand_refs[index])
-        return self._simulator_maps[index]
+            return self.maps[robot]
+        if robot not in self._simulator_maps:
+            (index,) = self.robots[robot]
+            self._simulator_maps[robot] = self._spec_order_map(self.hand_refs[index])
+        return self._simulator_maps[robot]
 
-    def check_width(self, x: torch.Tensor, index: int, key: str, simulator: bool) -> None:
-        """A robot's state or action has the entries of the embodiment's robot."""
-        names = self.robot_map(index, simulator).names(key)
+    def robot_of(self, ids: torch.Tensor) -> int:
+        """The one robot of a batch's (B, slots) embodiment ids: a postprocessor decodes one robot's actions
+        at a time."""
+        rows = {tuple(row) for row in ids.tolist()}
+        if len(rows) != 1:
+            named = sorted("+".join(self.embodiments[e] for e in row) for row in rows)
+            raise ValueError(f"a batch to decode must come from one robot, got {named}")
+        (row,) = rows
+        if list(row) not in self.robots:
+            raise ValueError(
+                f"this policy drives {', '.join(map(self.robot_name, range(len(self.robots))))}; it cannot "
+                f"drive {'+'.join(self.embodiments[e] for e in row)}"
+            )
+        return self.robots.index(list(row))
+
+    def check_width(self, x: torch.Tensor, robot: int, key: str, simulator: bool) -> None:
+        """A robot's state or action has the entries of the trained robot."""
+        names = self.robot_map(robot, simulator).names(key)
         if x.shape[-1] != len(names):
             raise ValueError(
-                f"{key} has {x.shape[-1]} entries; the '{self.embodiments[index]}' robot this policy was "
+                f"{key} has {x.shape[-1]} entries; the '{self.robot_name(robot)}' robot this policy was "
                 f"trained on has {len(names)}: "
                 + (
                     f"{self.body_dim(key)} body entries, then {len(names) - self.body_dim(key)} joints"
@@ -187,9 +212,14 @@ class _HandSpace:
     def latent_dim(self) -> int | None:
         return None if self.galr is None else self.galr.config.latent_dim
 
+    @property
+    def slot_widths(self) -> list[int]:
+        """Width of each hand slot's part of a policy vector."""
+        return self.space.slot_widths(self.latent_dim, self.embodiment_joints, self.robots[0])
+
     def policy_width(self, key: str) -> int:
-        """Width of the policy's `key`: its body entries, then the space's."""
-        return self.body_dim(key) + self.space.hand_width(self.latent_dim, self.embodiment_joints)
+        """Width of the policy's `key`: its body entries, then each hand slot's."""
+        return self.body_dim(key) + sum(self.slot_widths)
 
     @cached_property
     def hand_mask(self) -> torch.Tensor:
@@ -232,6 +262,7 @@ class _HandSpace:
             **({} if self.action_wrist_dim is None else {"action_wrist_dim": self.action_wrist_dim}),
             "galr_config": self.galr_config,
             "joint_maps": [dict(m) for m in self.joint_maps],
+            "robots": [list(robot) for robot in self.robots],
         }
 
     def galr_state(self, prefix: str | tuple[str, ...]) -> dict[str, torch.Tensor]:
@@ -264,7 +295,11 @@ class _HandSpace:
         for key in [k for k in state if k.startswith(USER_HAND)]:
             index = self.embodiments.index(key.removeprefix(USER_HAND))
             spec = str(unpack(state.pop(key).numpy().tobytes()))
-            self.hand_refs[index] = self.joint_maps[index]["hand"] = spec
+            self.joint_maps = [
+                JointMap.from_dict(m).with_hand(self.hand_refs[index], spec).to_dict()
+                for m in self.joint_maps
+            ]
+            self.hand_refs[index] = spec
             self._hands.pop(index, None)
             if self.galr is not None:
                 relocate_hand(self.galr, self.embodiments[index], spec)
@@ -324,11 +359,11 @@ class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
             def convert(x, key):
                 return self._from_universal(x, ids[:, 0], key, live)
         else:
-            index = self.robot_index(hand)
-            ids = torch.full((len(state), 1), index, dtype=torch.long, device=state.device)
+            robot = self.robot_index(hand)
+            ids = torch.tensor(self.robots[robot], device=state.device).expand(len(state), -1)
 
             def convert(x, key):
-                return self._from_robot(x, index, key, simulator, live)
+                return self._from_robot(x, robot, key, simulator, live)
 
         obs[OBS_STATE] = convert(state, OBS_STATE)
         if isinstance(action, torch.Tensor):
@@ -339,38 +374,43 @@ class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
         return new
 
     def robot_index(self, hand: str | None) -> int:
-        """The embodiment of frames from the simulator of `hand`, or (None) of the robot the pipeline
-        drives."""
+        """The robot of frames from the simulator of `hand` (the one-handed robot of that hand), or (None)
+        of the robot the pipeline drives."""
         name = hand or self.hand
+        names = [self.robot_name(r) for r in range(len(self.robots))]
         if name is None:
-            if len(self.embodiments) == 1:
+            if len(self.robots) == 1:
                 return 0
             raise ValueError(
-                f"this policy drives several robots ({', '.join(self.embodiments)}) and the frames do not "
+                f"this policy drives several robots ({', '.join(names)}) and the frames do not "
                 "say which: add observation.embodiment or observation.hand to them, or give the pipeline its "
                 "robot: preprocessor_overrides={'opfa_encode_joints': {'hand': NAME}}"
             )
-        if name not in self.embodiments:
+        if name not in names:
             raise ValueError(
-                f"this policy drives {', '.join(self.embodiments)}; it cannot drive hand '{name}' (a policy "
+                f"this policy drives {', '.join(names)}; it cannot drive hand '{name}' (a policy "
                 "acts for the robots it was trained on)"
             )
-        return self.embodiments.index(name)
+        return names.index(name)
 
-    def _from_robot(self, x: torch.Tensor, index: int, key: str, simulator: bool, live: bool) -> torch.Tensor:
-        """A robot's state or action -> the policy space (body entries, then the space's hand part). A live
-        robot's joints must be near its hand's limits: a reading in other units would be encoded into a
+    def _from_robot(self, x: torch.Tensor, robot: int, key: str, simulator: bool, live: bool) -> torch.Tensor:
+        """A robot's state or action -> the policy space (body entries, then each hand slot's part). A live
+        robot's joints must be near its hands' limits: a reading in other units would be encoded into a
         state the policy never saw, without a word (NaN is the state guard's, which names the entry)."""
-        self.check_width(x, index, key, simulator)
-        joint_map = self.robot_map(index, simulator)
-        body, q = joint_map.split(x, key)
-        if live and q.isfinite().all():
-            source = f"{OBS_STATE} of the robot" + ("" if simulator else f" (through {joint_map.source})")
-            self.model(index).check_within_limits(q.reshape(-1, q.shape[-1]), source, LIVE_LIMIT_TOLERANCE)
-        hand = self.space.from_joints(self, index, q)
-        if self._decodes_state(key, live):
-            hand = self.as_decoded(index, hand)
-        return torch.cat([body, hand], dim=-1)
+        self.check_width(x, robot, key, simulator)
+        joint_map = self.robot_map(robot, simulator)
+        body, qs = joint_map.split(x, key)
+        parts = [body]
+        for index, q, slot in zip(self.robots[robot], qs, joint_map.slots, strict=True):
+            if live and q.isfinite().all():
+                source = f"{OBS_STATE} of the robot" + ("" if simulator else f" (through {joint_map.source})")
+                source += f", its {slot.side} hand" if slot.side else ""
+                self.model(index).check_within_limits(
+                    q.reshape(-1, q.shape[-1]), source, LIVE_LIMIT_TOLERANCE
+                )
+            hand = self.space.from_joints(self, index, q)
+            parts.append(self.as_decoded(index, hand) if self._decodes_state(key, live) else hand)
+        return torch.cat(parts, dim=-1)
 
     def _decodes_state(self, key: str, live: bool) -> bool:
         return self.decoded_state and self.space.uses_galr and key == OBS_STATE and not live
@@ -428,24 +468,16 @@ class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
         return features
 
 
-def single_index(ids: torch.Tensor, embodiments: list[str]) -> int:
-    """The one embodiment of a batch's ids: a postprocessor decodes one robot's actions at a time."""
-    unique = ids.unique()
-    if len(unique) != 1:
-        names = [embodiments[i] for i in unique.tolist()]
-        raise ValueError(f"a batch to decode must come from one hand, got {names}")
-    return int(unique[0])
-
-
 def paired_frames(step: AbsoluteActionsProcessorStep, batch: int, embodiments: list[str]) -> FrameRobot:
     """The robot of the batch a postprocessor step's preprocessor saw last (a one-robot policy's when it
     has seen none)."""
-    encoder = step.relative_step
-    seen = encoder.last_frames if isinstance(encoder, OpfaEncodeJointsStep) else None
+    encoder = step.relative_step if isinstance(step.relative_step, OpfaEncodeJointsStep) else None
+    seen = None if encoder is None else encoder.last_frames
     if seen is not None and len(seen.ids) == batch:
         return seen
-    if len(embodiments) == 1:
-        return FrameRobot(torch.zeros(batch, 1, dtype=torch.long), simulator=False)
+    robots = [[index] for index in range(len(embodiments))] if encoder is None else encoder.robots
+    if len(robots) == 1:
+        return FrameRobot(torch.tensor(robots[0]).expand(batch, -1), simulator=False)
     raise ValueError(
         "this postprocessor needs the robot its preprocessor saw: run the preprocessor on the observation "
         f"first, and {LOAD_PAIRED}"
@@ -481,11 +513,13 @@ class OpfaDecodeJointsStep(_HandSpace, AbsoluteActionsProcessorStep):
         action = new[TransitionKey.ACTION]
         hands = self.hands
         frames = paired_frames(self, len(action), hands.embodiments)
-        index = single_index(frames.ids, hands.embodiments)
-        body = hands.body_dim(ACTION)
-        wrist, rest = action[..., :body], action[..., body:]
-        q = hands.space.to_joints(hands, index, rest)
-        new[TransitionKey.ACTION] = hands.robot_map(index, frames.simulator).join(wrist, q)
+        robot = hands.robot_of(frames.ids)
+        wrist, *parts = action.split([hands.body_dim(ACTION), *hands.slot_widths], dim=-1)
+        qs = [
+            hands.space.to_joints(hands, index, part)
+            for index, part in zip(hands.robots[robot], parts, strict=True)
+        ]
+        new[TransitionKey.ACTION] = hands.robot_map(robot, frames.simulator).join(wrist, qs)
         return new
 
     def get_config(self) -> dict[str, Any]:

@@ -16,7 +16,7 @@ from lerobot.policies.utils import populate_queues
 from lerobot.utils.constants import ACTION, OBS_STATE
 from torch import Tensor, nn
 
-from lerobot_opfa.features import OBS_EMBODIMENT, OBS_POINTCLOUD, single_slot
+from lerobot_opfa.features import OBS_EMBODIMENT, OBS_POINTCLOUD, column_embodiments
 from lerobot_opfa.galr.pointnet import PointNetEncoder
 from lerobot_opfa.hands.registry import load_spec
 from lerobot_opfa.policy.configuration_opfa import OpfaConfig
@@ -28,18 +28,21 @@ from lerobot_opfa.process_group import hold_until_exit
 
 
 def loss_weights(config: OpfaConfig) -> Tensor:
-    """(embodiments, width) weights of the action entries in the loss: the wrist and the hand each carry
-    half, spread evenly over the entries that mean something for the embodiment (`ActionSpace.hand_mask`).
+    """(embodiments, width) weights of the action entries in the loss: the wrist and the hands each carry
+    half, the hands' half shared by the hand slots, spread evenly over the entries that mean something for
+    the embodiment (`ActionSpace.hand_mask`); an entry takes the row of its slot's hand
+    (`features.column_embodiments`).
 
     A plain mean over entries lets the hand part outweigh the wrist by its width: 64 z entries against 6
     wrist entries under `galr`, which then fits the joints and leaves the wrist at the demos' average
     motion (denoising error of the wrist 10x that of `raw` after the same training). For `per_embodiment`,
     a hand's share goes to the universal joints it has."""
-    n_wrist = len(config.action_body)
-    present = config.space.hand_mask(config.latent_dim, config.embodiment_joints)
-    hand_share = 0.5 if n_wrist else 1.0
-    wrist = torch.full((len(config.embodiments), n_wrist), (1 - hand_share) / max(n_wrist, 1))
-    return torch.cat([wrist, hand_share * present / present.sum(-1, keepdim=True)], dim=-1)
+    n_wrist, widths = len(config.action_body), config.slot_widths
+    mask = config.space.hand_mask(config.latent_dim, config.embodiment_joints)
+    slot_share = (0.5 if n_wrist else 1.0) / len(widths)
+    wrist = torch.full((len(config.embodiments), n_wrist), (1 - slot_share * len(widths)) / max(n_wrist, 1))
+    slots = [slot_share * mask[:, :w] / mask[:, :w].sum(-1, keepdim=True).clamp(min=1) for w in widths]
+    return torch.cat([wrist, *slots], dim=-1)
 
 
 class OpfaPolicy(PreTrainedPolicy):
@@ -220,10 +223,16 @@ class OpfaPolicy(PreTrainedPolicy):
         cond = self.encode_observation(batch, images)
         noise = torch.randn_like(x0)
         t = torch.randint(0, self.config.num_train_timesteps, (len(x0),), device=x0.device)
-        head = single_slot(batch[OBS_EMBODIMENT])
+        head = self.action_embodiments(batch[OBS_EMBODIMENT])
         pred = self.unet(self.ddim.add_noise(x0, noise, t), t, cond, head)
         error = F.mse_loss(pred, self.ddim.target(x0, noise), reduction="none")
-        return (error * self.loss_weights[head].unsqueeze(1)).sum(-1).mean()
+        weights = self.loss_weights[head, torch.arange(head.shape[-1], device=head.device)]
+        return (error * weights.unsqueeze(1)).sum(-1).mean()
+
+    def action_embodiments(self, ids: Tensor) -> Tensor:
+        """(B, A) embodiment of each action entry, from the frames' (B, slots) ids: its loss row and, for
+        `per_embodiment`, its output head."""
+        return column_embodiments(ids, self.config.blocks(ACTION))
 
     # --- inference ---------------------------------------------------------------------------------
     @torch.inference_mode()
@@ -237,7 +246,7 @@ class OpfaPolicy(PreTrainedPolicy):
         else:
             self.check_observation(batch)
         cond = self.encode_observation(batch)
-        head = single_slot(batch[OBS_EMBODIMENT])
+        head = self.action_embodiments(batch[OBS_EMBODIMENT])
         b = len(cond)
         shape = (b, self.config.horizon, self.unet.action_dim)
         if noise is None:

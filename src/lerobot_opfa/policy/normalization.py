@@ -4,7 +4,8 @@ One affine map per hand for the wrist and joint entries, one shared map for z (a
 LeRobot's normaliser keeps one set of statistics per feature, and pooled over hands it would squash a
 gripper's 4 cm aperture next to a hand's wrist range, and mix absent universal joints (zeros) into present
 ones. Each feature has tables of shape (E, D), row e for embodiment e: `shift`, `scale` with
-x_norm = (x - shift[e]) / scale[e], and the training range `low`, `high`.
+x_norm = (x - shift[e]) / scale[e], and the training range `low`, `high`. A two-handed robot's entries
+each take the row of their own slot's hand (the body's: the first slot's), `features.column_embodiments`.
 
 Two rules keep a rollout from running away:
 - a scale is never below the entry's noise floor (what the physical noise of `datasets.statistics` moves it
@@ -29,7 +30,7 @@ from lerobot.processor.relative_action_processor import AbsoluteActionsProcessor
 from lerobot.utils.constants import ACTION, OBS_STATE
 
 from lerobot_opfa.datasets.statistics import pool
-from lerobot_opfa.features import OBS_EMBODIMENT, single_slot
+from lerobot_opfa.features import OBS_EMBODIMENT, column_embodiments
 from lerobot_opfa.policy.joint_steps import paired_frames
 
 logger = logging.getLogger(__name__)
@@ -66,11 +67,21 @@ class _EmbodimentAffine:
     keys: list[str] = field(default_factory=lambda: [OBS_STATE, ACTION])
     tables: dict[str, torch.Tensor] = field(default_factory=dict, repr=False)
     """`{key}.shift`, `{key}.scale`, `{key}.low`, `{key}.high`, (E, D) each; saved as the step's state."""
+    slot_widths: list[int] = field(default_factory=list)
+    """Width of each hand slot's part, after the body's; empty (saved before slots): one robot's entries,
+    every one by its first slot's row."""
+
+    def columns(self, key: str, ids: torch.Tensor) -> torch.Tensor:
+        """(B, D) table row of each entry of `key` for frames of (B, slots) embodiment ids."""
+        width = self.tables[f"{key}.shift"].shape[-1]
+        blocks = [width - sum(self.slot_widths), *self.slot_widths] if self.slot_widths else []
+        return column_embodiments(ids, blocks).expand(len(ids), width)
 
     def _table(self, key: str, name: str, x: torch.Tensor, ids: torch.Tensor) -> torch.Tensor:
-        """Rows `ids` of a table, shaped to broadcast against x (B, [T], D)."""
-        shape = (len(ids), *([1] * (x.dim() - 2)), x.shape[-1])
-        return self.tables[f"{key}.{name}"].to(x.device)[ids].view(shape)
+        """Each frame's row of a table by its ids (B, slots), shaped to broadcast against x (B, [T], D)."""
+        table = self.tables[f"{key}.{name}"].to(x.device)
+        rows = table[self.columns(key, ids).to(x.device), torch.arange(table.shape[-1], device=x.device)]
+        return rows.view(len(ids), *([1] * (x.dim() - 2)), x.shape[-1])
 
     def state_dict(self) -> dict[str, torch.Tensor]:
         return dict(self.tables)
@@ -98,7 +109,7 @@ class OpfaNormalizeStep(_EmbodimentAffine, ProcessorStep):
     def __call__(self, transition):
         new = transition.copy()
         obs = dict(new[TransitionKey.OBSERVATION])
-        ids = single_slot(obs[OBS_EMBODIMENT])
+        ids = obs[OBS_EMBODIMENT]
         if OBS_STATE in self.keys:
             obs[OBS_STATE] = self._checked_state(obs[OBS_STATE], ids)
         action = new.get(TransitionKey.ACTION)
@@ -125,10 +136,10 @@ class OpfaNormalizeStep(_EmbodimentAffine, ProcessorStep):
         low, high = self._table(OBS_STATE, "low", state, ids), self._table(OBS_STATE, "high", state, ids)
         width = (high - low).maximum(self._table(OBS_STATE, "scale", state, ids))
         widths_out = ((low - state).maximum(state - high) / width).flatten(0, -2)
-        rows = ids.repeat_interleave(len(widths_out) // len(ids))
+        hands = self.columns(OBS_STATE, ids).repeat_interleave(len(widths_out) // len(ids), dim=0)
         flat, low, high = (x.expand_as(state).flatten(0, -2) for x in (state, low, high))
         for row, entry in (widths_out > GUARD_WIDTHS).nonzero().tolist():
-            hand = int(rows[row])
+            hand = int(hands[row, entry])
             if (hand, entry) in self._warned:
                 continue
             self._warned.add((hand, entry))
@@ -150,7 +161,12 @@ class OpfaNormalizeStep(_EmbodimentAffine, ProcessorStep):
         self._warned.clear()
 
     def get_config(self) -> dict[str, Any]:
-        return {"keys": list(self.keys), "names": list(self.names), "embodiments": list(self.embodiments)}
+        return {
+            "keys": list(self.keys),
+            "names": list(self.names),
+            "embodiments": list(self.embodiments),
+            **({"slot_widths": list(self.slot_widths)} if self.slot_widths else {}),
+        }
 
 
 @ProcessorStepRegistry.register("opfa_unnormalize")
@@ -167,11 +183,12 @@ class OpfaUnnormalizeStep(_EmbodimentAffine, AbsoluteActionsProcessorStep):
         new = transition.copy()
         action = new[TransitionKey.ACTION]
         names = self.embodiments or [str(i) for i in range(len(self.tables[f"{ACTION}.shift"]))]
-        ids = single_slot(paired_frames(self, len(action), names).ids).to(action.device)
+        ids = paired_frames(self, len(action), names).ids.to(action.device)
         x = action * self._table(ACTION, "scale", action, ids) + self._table(ACTION, "shift", action, ids)
         low, high = self._table(ACTION, "low", action, ids), self._table(ACTION, "high", action, ids)
         new[TransitionKey.ACTION] = x.clamp(low, high)
         return new
 
     def get_config(self) -> dict[str, Any]:
-        return {"keys": [ACTION], "embodiments": list(self.embodiments)}
+        slots = {"slot_widths": list(self.slot_widths)} if self.slot_widths else {}
+        return {"keys": [ACTION], "embodiments": list(self.embodiments), **slots}

@@ -35,13 +35,14 @@ from lerobot_opfa.datasets.io import read_columns
 from lerobot_opfa.datasets.joint_map import JointMap
 from lerobot_opfa.datasets.layout import DatasetLayout, opfa_record, read_layout
 from lerobot_opfa.datasets.statistics import (
+    WRIST_NOISE,
     column_statistics,
     noise_floor,
     raw_noise,
     read_statistics,
     statistics_of,
 )
-from lerobot_opfa.features import OBS_EMBODIMENT, OBS_HAND, single_slot
+from lerobot_opfa.features import OBS_EMBODIMENT, column_embodiments
 from lerobot_opfa.galr import checkpoints
 from lerobot_opfa.galr.frozen import galr_fingerprint, known_hand_refs, load_galr
 from lerobot_opfa.galr.model import Galr
@@ -127,8 +128,9 @@ def resolve_config(config: OpfaConfig, dataset_meta: Any) -> tuple[DatasetLayout
                 f"{config.galr_path} --hands +SPEC` (minutes), or use action_space raw or per_embodiment"
             )
         config.latent_dim = galr.config.latent_dim
-    config.space.check_embodiments(layout.embodiments)
+    config.space.check_robots(layout.robots, layout.embodiments)
     config.embodiments, config.wrist_names = list(layout.embodiments), list(layout.wrist_names)
+    config.robots = [list(robot) for robot in layout.robots]
     config.action_body_names = None if layout.action_body_names is None else list(layout.action_body_names)
     config.embodiment_joints = [load_spec(ref).universal_names for ref in layout.hand_refs]
     return layout, galr
@@ -158,8 +160,7 @@ def _bodies(config: OpfaConfig) -> dict[str, int]:
 
 def _pooled(config: OpfaConfig, body: int) -> torch.Tensor:
     """Which entries of a policy vector with `body` body entries take statistics over all hands."""
-    hand = config.space.hand_width(config.latent_dim, config.embodiment_joints)
-    pooled = torch.zeros(body + hand, dtype=torch.bool)
+    pooled = torch.zeros(body + sum(config.slot_widths), dtype=torch.bool)
     pooled[:body] = config.wrist_normalization == "shared"
     pooled[body:] = config.space.pools_hand_statistics
     return pooled
@@ -207,49 +208,65 @@ def _frame_statistics(
 ) -> Fitted:
     columns = [OBS_STATE, ACTION] + ([OBS_EMBODIMENT] if layout.kind == "merged" else [])
     frames = {k: torch.tensor(v, dtype=torch.float32) for k, v in read_columns(root, columns).items()}
-    if layout.kind == "native":  # the body entries, then the joints in spec order and units
-        joint_map, joints = layout.joint_maps[0], []
-        for key in (OBS_STATE, ACTION):
-            body, q = joint_map.split(frames[key], key)
-            encoder.model(0).check_within_limits(q, f"{root} ({key}, through {joint_map.source})")
-            joint_map.check_spans(frames[key], key, encoder.model(0).lower, encoder.model(0).upper)
-            frames[key] = torch.cat([body, q], dim=1)
-            joints.append(q)
-        if config.space.uses_galr:  # every frame's z once, not each sample's window at every step
-            encoder.cache_latents(0, torch.cat(joints).to(config.device or "cpu"))
+    merged = layout.kind == "merged"
+    if not merged:
+        _check_robot_frames(config, layout, encoder, frames, root)
     n = len(frames[OBS_STATE])
-    subsample = config.space.uses_galr and not encoder.use_cached_latents and layout.kind == "merged"
+    subsample = config.space.uses_galr and not encoder.use_cached_latents and merged
     if subsample and n > STATS_MAX_ENCODED_FRAMES:
         keep = torch.randperm(n, generator=torch.Generator().manual_seed(0))[:STATS_MAX_ENCODED_FRAMES]
         frames = {k: v[keep] for k, v in frames.items()}
 
     def encode(rows: torch.Tensor, ids: torch.Tensor | None, action: torch.Tensor | None = None):
-        where = {OBS_EMBODIMENT: ids} if layout.kind == "merged" else {OBS_HAND: layout.embodiments[0]}
-        observation = {OBS_STATE: rows} | where
+        observation = {OBS_STATE: rows} | ({OBS_EMBODIMENT: ids} if merged else {})
         return encoder(create_transition(observation=observation, action=action))
 
-    ids = frames[OBS_EMBODIMENT].long() if layout.kind == "merged" else None
-    out = encode(frames[OBS_STATE], ids, frames[ACTION])
-    ids = single_slot(out[TransitionKey.OBSERVATION][OBS_EMBODIMENT])
+    out = encode(frames[OBS_STATE], frames[OBS_EMBODIMENT].long() if merged else None, frames[ACTION])
+    ids = out[TransitionKey.OBSERVATION][OBS_EMBODIMENT]
     wrist = len(config.wrist_names)
-    if layout.kind == "merged":  # the joints only (cached z would not move with them)
+    if merged:  # the joints only (cached z would not move with them)
         raw = frames[OBS_STATE][:, : wrist + len(UNIVERSAL_JOINT_NAMES)]
-        universal = list(UNIVERSAL_JOINT_NAMES)
-    else:
+        noise = raw_noise(wrist, list(UNIVERSAL_JOINT_NAMES))
+    else:  # the robot's entries, each with its joint's noise in the robot's units
         raw = frames[OBS_STATE]
-        universal = encoder.model(0).spec.universal_names
+        joints = [raw_noise(0, encoder.model(index).spec.universal_names) for index in layout.robots[0]]
+        noise = layout.joint_maps[0].entry_noise(OBS_STATE, WRIST_NOISE, joints).float()
+    n_embodiments = len(config.embodiments)
+    state_ids, action_ids = (column_embodiments(ids, config.blocks(key)) for key in (OBS_STATE, ACTION))
+    frame_ids = frames[OBS_EMBODIMENT].long() if merged else None
     floor = noise_floor(
-        lambda rows, row_ids: encode(rows, row_ids)[TransitionKey.OBSERVATION][OBS_STATE],
+        lambda rows, kept: encode(rows, None if frame_ids is None else frame_ids[kept])[
+            TransitionKey.OBSERVATION
+        ][OBS_STATE],
         raw,
         out[TransitionKey.OBSERVATION][OBS_STATE],
-        ids,
-        raw_noise(wrist, universal),
-        len(config.embodiments),
+        state_ids,
+        noise,
+        n_embodiments,
         pooled,
     )
-    n_embodiments = len(config.embodiments)
-    state = column_statistics(out[TransitionKey.OBSERVATION][OBS_STATE], ids, n_embodiments)
-    return state, column_statistics(out[TransitionKey.ACTION], ids, n_embodiments), floor
+    state = column_statistics(out[TransitionKey.OBSERVATION][OBS_STATE], state_ids, n_embodiments)
+    return state, column_statistics(out[TransitionKey.ACTION], action_ids, n_embodiments), floor
+
+
+def _check_robot_frames(
+    config: OpfaConfig, layout: DatasetLayout, encoder: OpfaEncodeJointsStep, frames: dict, root: Path
+) -> None:
+    """A robot's recorded joints, read through its map, are within its hands' limits and span them as a
+    joint does (`JointMap.check_spans`); for `galr`, every frame's z is encoded once, not each sample's
+    window at every step."""
+    joint_map, robot, joints = layout.joint_maps[0], layout.robots[0], {}
+    for key in (OBS_STATE, ACTION):
+        _, qs = joint_map.split(frames[key], key)
+        for index, slot, q in zip(robot, joint_map.slots, qs, strict=True):
+            side = f", {slot.side} hand" if slot.side else ""
+            encoder.model(index).check_within_limits(q, f"{root} ({key}, through {joint_map.source}{side})")
+            joints.setdefault(index, []).append(q)
+        limits = [(encoder.model(index).lower, encoder.model(index).upper) for index in robot]
+        joint_map.check_spans(frames[key], key, limits)
+    if config.space.uses_galr:
+        for index, rows in joints.items():
+            encoder.cache_latents(index, torch.cat(rows).to(config.device or "cpu"))
 
 
 def depth_step(config: OpfaConfig, meta: Any) -> DepthToPointCloudStep | None:
@@ -281,7 +298,8 @@ def check_trainable_frames(config: OpfaConfig, layout: DatasetLayout, root: Path
     episodes, first, lengths = np.unique(frames["episode_index"], return_index=True, return_counts=True)
     hands = frames[OBS_EMBODIMENT].reshape(-1)[first] if layout.kind == "merged" else np.zeros_like(first)
     drop = config.drop_n_last_frames
-    for index, hand in enumerate(layout.embodiments):
+    robots = layout.embodiments if layout.kind == "merged" else ["+".join(layout.embodiments)]
+    for index, hand in enumerate(robots):
         mine = lengths[hands == index]
         if not len(mine):
             raise ValueError(
@@ -309,6 +327,16 @@ class PolicySpaceSteps:
     decode: OpfaDecodeJointsStep
 
 
+def hand_entry_names(config: OpfaConfig, layout: DatasetLayout, encode: OpfaEncodeJointsStep) -> list[str]:
+    """The names of the policy's entries after the body: each hand slot's (`left.z0`, ... for two)."""
+    slots = layout.joint_maps[0].slots if layout.kind == "native" else [None]
+    names = []
+    for index, slot in zip(layout.robots[0], slots, strict=True):
+        prefix = f"{slot.side}." if slot is not None and len(slots) > 1 else ""
+        names += [prefix + name for name in config.space.hand_names(encode, index)]
+    return names
+
+
 def policy_space_steps(
     config: OpfaConfig, meta: Any, layout: DatasetLayout, galr: Galr | None
 ) -> PolicySpaceSteps:
@@ -325,6 +353,7 @@ def policy_space_steps(
         action_wrist_dim=None if config.action_body_names is None else len(config.action_body_names),
         galr_config=dataclasses.asdict(galr.config) if galr is not None else None,
         joint_maps=[m.to_dict() for m in layout.joint_maps],
+        robots=[list(robot) for robot in layout.robots],
         galr=galr,
         use_cached_latents=cached,
         record_for_decode=True,
@@ -333,12 +362,14 @@ def policy_space_steps(
     tables = _policy_space_tables(config, layout, encode, Path(meta.root))
     normalize = OpfaNormalizeStep(
         tables=tables,
-        names=[*config.wrist_names, *config.space.hand_names(encode)],
+        slot_widths=config.slot_widths,
+        names=[*config.wrist_names, *hand_entry_names(config, layout, encode)],
         embodiments=list(config.embodiments),
     )
     unnormalize = OpfaUnnormalizeStep(
         keys=[ACTION],
         tables={k: v for k, v in tables.items() if k.startswith(ACTION)},
+        slot_widths=config.slot_widths,
         embodiments=list(config.embodiments),
         relative_step=encode,
     )

@@ -48,7 +48,12 @@ from lerobot_opfa.features import OBS_EMBODIMENT
 from lerobot_opfa.policy.configuration_opfa import OpfaConfig
 from lerobot_opfa.policy.deploy import checkpoint_config, write_copy
 from lerobot_opfa.policy.joint_steps import OpfaEncodeJointsStep
-from lerobot_opfa.policy.processor_opfa import PolicySpaceSteps, policy_space_steps, resolve_config
+from lerobot_opfa.policy.processor_opfa import (
+    PolicySpaceSteps,
+    hand_entry_names,
+    policy_space_steps,
+    resolve_config,
+)
 
 STEPS_DIR = Path("meta") / "opfa_steps"
 """Where a latent dataset keeps the steps its frames went through."""
@@ -77,7 +82,7 @@ def latent_dataset(
     layout, galr = resolve_config(config, meta)
     steps = policy_space_steps(config, meta, layout, galr)
     state, action = _policy_space_frames(steps, source, layout.kind == "merged")
-    hand = config.space.hand_names(steps.encode)
+    hand = hand_entry_names(config, layout, steps.encode)
     infos = {
         key: {"dtype": "float32", "shape": (len(body) + len(hand),), "names": [*body, *hand]}
         for key, body in ((OBS_STATE, config.wrist_names), (ACTION, config.action_body))

@@ -1,0 +1,260 @@
+"""Two hands per frame, as published bimanual datasets lay them out (written with LeRobot's own writer): a
+Unitree G1 with Inspire hands (0-1 units, 1 = open) with its arms first or with each arm beside its hand,
+LeRobot's two-arm rig (`bi_so_follower` naming) with a gripper on each arm, and a rig with different hands
+on its two sides. One joint map with a slot per hand reads each; the policy holds one hand part per slot
+(a latent each for `galr`), and the checkpoint gives back the robot's entries in its order and units."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import yaml
+from lerobot.datasets.dataset_metadata import LeRobotDatasetMetadata
+from lerobot.datasets.lerobot_dataset import LeRobotDataset
+from lerobot.policies.factory import make_pre_post_processors
+from lerobot.processor import TransitionKey
+from lerobot.processor.converters import batch_to_transition
+from lerobot.utils.constants import ACTION, OBS_STATE
+from subprocesses import run_lerobot_here
+from test_map_hint import G1_ARM, G1_INSPIRE, SO101
+from test_policy import batch_of, make_policy, save_galr
+
+from lerobot_opfa.datasets.io import read_columns
+from lerobot_opfa.datasets.joint_map import JointMap, JointMapError
+from lerobot_opfa.datasets.synthetic import write_synthetic_dataset
+from lerobot_opfa.features import OBS_EMBODIMENT, OBS_POINTCLOUD
+from lerobot_opfa.hands import load_hand
+from lerobot_opfa.policy.joint_steps import OpfaEncodeJointsStep
+from lerobot_opfa.policy.modeling_opfa import OpfaPolicy
+
+N_POINTS = 32
+INSPIRE_OF = {  # the G1 SDK's Inspire motor -> the spec's joint
+    "Pinky": "little_mcp_flex", "Ring": "ring_mcp_flex", "Middle": "middle_mcp_flex",
+    "Index": "index_mcp_flex", "ThumbBend": "thumb_bend", "ThumbRotation": "thumb_yaw",
+}  # fmt: skip
+SIDES = ("left", "right")
+
+
+def g1_inspire_slot(side: str) -> dict:
+    """One G1 Inspire hand's slot: 0 (closed) .. 1 (open) per motor, joint = upper * (1 - entry)."""
+    hand = load_hand("inspire")
+    upper = dict(zip(hand.joint_names, hand.upper.tolist(), strict=True))
+    joints = {
+        f"k{side.title()}Hand{motor}": {"joint": joint, "scale": -upper[joint], "offset": upper[joint]}
+        for motor, joint in INSPIRE_OF.items()
+    }
+    return {"side": side, "hand": "inspire", "joints": joints}
+
+
+def named_slot(side: str, hand: str, prefix: str) -> dict:
+    """A slot whose entries are `<prefix><joint>` in the spec's units."""
+    return {"side": side, "hand": hand, "joints": {f"{prefix}{j}": j for j in load_hand(hand).joint_names}}
+
+
+ROBOTS = {
+    # name: (hands per side, state/action entries, the map's slots)
+    "g1_inspire_arms_first": (
+        ("inspire", "inspire"),
+        [*(f"k{s}{j}" for s in ("Left", "Right") for j in G1_ARM),
+         *(f"k{s}Hand{j}" for s in ("Left", "Right") for j in G1_INSPIRE)],
+        [g1_inspire_slot(side) for side in SIDES],
+    ),
+    "g1_inspire_side_by_side": (
+        ("inspire", "inspire"),
+        [*(f"kLeft{j}" for j in G1_ARM), *(f"kLeftHand{j}" for j in G1_INSPIRE),
+         *(f"kRight{j}" for j in G1_ARM), *(f"kRightHand{j}" for j in G1_INSPIRE)],
+        [g1_inspire_slot(side) for side in SIDES],
+    ),
+    "bi_so_follower": (  # SO-101 arms, each gripper 0 (closed) .. 100 (open) as the 2F-85's knuckle
+        ("robotiq_2f85", "robotiq_2f85"),
+        [f"{s}_{j}.pos" for s in SIDES for j in SO101],
+        [{"side": s, "hand": "robotiq_2f85",
+          "joints": {f"{s}_gripper.pos": {"joint": "left_knuckle", "scale": -0.008, "offset": 0.8}}}
+         for s in SIDES],
+    ),
+    "inspire_xhand": (  # different hands on the two arms
+        ("inspire", "xhand"),
+        [*(f"left_arm_{i}" for i in range(6)), *(f"left_{j}" for j in load_hand("inspire").joint_names),
+         *(f"right_arm_{i}" for i in range(6)), *(f"right_{j}" for j in load_hand("xhand").joint_names)],
+        [named_slot("left", "inspire", "left_"), named_slot("right", "xhand", "right_")],
+    ),
+}  # fmt: skip
+
+
+def write_robot(root: Path, sources: dict[str, Path], name: str) -> Path:
+    """The robot `name` of `ROBOTS` with each side's hand moving as a synthetic dataset of that hand, its
+    body entries a ramp, written with LeRobot's writer in the robot's entries and units."""
+    hands, names, slots = ROBOTS[name]
+    joint_map = JointMap.from_dict({"slots": slots})
+    frames = {
+        s: read_columns(sources[h], [OBS_STATE, ACTION, OBS_POINTCLOUD])
+        for s, h in zip(SIDES, hands, strict=True)
+    }
+    features = {
+        key: {"dtype": "float32", "shape": (len(names),), "names": names} for key in (OBS_STATE, ACTION)
+    } | {OBS_POINTCLOUD: {"dtype": "float32", "shape": (3 * N_POINTS,), "names": None}}
+    dataset = LeRobotDataset.create(
+        f"local/{name}", 10, features=features, root=root / name, robot_type=name, use_videos=False
+    )
+    n = min(len(f[OBS_STATE]) for f in frames.values())
+    values = {}
+    for key in (OBS_STATE, ACTION):
+        out = np.zeros((n, len(names)), np.float32)
+        body = [i for i, entry in enumerate(names) if entry not in joint_map.key_joints(key)]
+        out[:, body] = np.linspace(-0.5, 0.5, n)[:, None] + 0.01 * np.arange(len(body))
+        for side, slot in zip(SIDES, joint_map.slots, strict=True):
+            q = frames[side][key][:n, 6:]
+            q = q[::-1] if side == "right" and hands[0] == hands[1] else q  # the two hands apart
+            order = load_hand(slot.hand).joint_names
+            for entry, mapped in slot.joints.items():
+                joint = q[:, order.index(mapped.joint)]
+                out[:, names.index(entry)] = (joint - mapped.offset) / mapped.scale
+        values[key] = out
+    for row in range(n):
+        dataset.add_frame({
+            OBS_STATE: values[OBS_STATE][row], ACTION: values[ACTION][row],
+            OBS_POINTCLOUD: frames["left"][OBS_POINTCLOUD][row], "task": "lift the tray",
+        })  # fmt: skip
+        if row in (n // 2 - 1, n - 1):
+            dataset.save_episode()
+    dataset.finalize()
+    (root / f"{name}.yaml").write_text(yaml.safe_dump({"slots": slots}, sort_keys=False))
+    return root / name
+
+
+@pytest.fixture(scope="module")
+def robots(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("two_hands")
+    save_galr(root / "galr", ["inspire", "robotiq_2f85", "xhand"])
+    sources = {}
+    for seed, hand in enumerate(["inspire", "robotiq_2f85", "xhand"]):
+        sources[hand] = write_synthetic_dataset(
+            root / f"{hand}_sim", hand, episodes=2, frames=16, n_points=N_POINTS, seed=seed
+        )
+    for name in ROBOTS:
+        write_robot(root, sources, name)
+    return root
+
+
+def bound_map(robots: Path, name: str) -> JointMap:
+    meta = LeRobotDatasetMetadata(f"local/{name}", root=robots / name)
+    return JointMap.load(robots / f"{name}.yaml").bind(
+        meta.features[OBS_STATE]["names"], meta.features[ACTION]["names"]
+    )
+
+
+@pytest.mark.parametrize("name", sorted(ROBOTS))
+def test_a_two_handed_map_splits_the_body_and_each_hand_and_joins_them_back(robots, name):
+    joint_map = bound_map(robots, name)
+    hands, names, _ = ROBOTS[name]
+    action = torch.tensor(read_columns(robots / name, [ACTION])[ACTION], dtype=torch.float64)
+    body, qs = joint_map.split(action, ACTION)
+    assert [q.shape[-1] for q in qs] == [load_hand(h).dof for h in hands]
+    for hand, q in zip(hands, qs, strict=True):
+        model = load_hand(hand)
+        assert ((q >= model.lower - 1e-4) & (q <= model.upper + 1e-4)).all(), "each hand in its spec's units"
+    assert body.shape[-1] == len(names) - sum(q.shape[-1] for q in qs)
+    assert torch.allclose(joint_map.join(body, qs), action)
+
+
+def test_a_map_that_gives_one_entry_to_both_hands_or_leaves_a_side_unsaid_is_refused(robots):
+    _, names, slots = ROBOTS["g1_inspire_arms_first"]
+    twice = [slots[0], {**slots[1], "joints": slots[0]["joints"]}]
+    with pytest.raises(JointMapError, match=r"entries \['kLeftHandIndex', .*\] are given to two hand slots"):
+        JointMap.from_dict({"slots": twice}, "twice.yaml").bind(names, names)
+    unsaid = [{k: v for k, v in slot.items() if k != "side"} for slot in slots]
+    with pytest.raises(JointMapError, match=r"unsaid.yaml: each slot of a two-handed robot names its side"):
+        JointMap.from_dict({"slots": unsaid}, "unsaid.yaml")
+
+
+def _round_trip(pre, post, frames, rows) -> tuple[torch.Tensor, torch.Tensor, dict]:
+    transition = batch_to_transition(batch_of(frames, rows))
+    original = transition[TransitionKey.ACTION].clone()
+    for step in pre.steps:
+        transition = step(transition)
+    encoded = dict(transition[TransitionKey.OBSERVATION])
+    back = {TransitionKey.ACTION: transition[TransitionKey.ACTION], TransitionKey.OBSERVATION: {}}
+    for step in post.steps:
+        back = step(back)
+    return original, back[TransitionKey.ACTION], encoded
+
+
+@pytest.mark.parametrize("space", ["raw", "per_embodiment", "galr"])
+@pytest.mark.parametrize("name", sorted(ROBOTS))
+def test_a_two_handed_robots_actions_come_back_in_its_entries_order_and_units(robots, name, space):
+    hands, names, _ = ROBOTS[name]
+    policy, pre, post, frames = make_policy(
+        robots, name, action_space=space, joint_map=str(robots / f"{name}.yaml")
+    )
+    encoder = next(step for step in pre.steps if isinstance(step, OpfaEncodeJointsStep))
+    assert [encoder.embodiments[e] for e in encoder.robots[0]] == list(hands)
+    original, back, encoded = _round_trip(pre, post, frames, [0, 5, 9])
+    assert back.shape == original.shape and back.shape[-1] == len(names)
+    joint_map = encoder.maps[0]
+    body = joint_map.body_names(ACTION)
+    columns = [names.index(b) for b in body]
+    assert torch.allclose(back[..., columns], original[..., columns], atol=1e-4), "the body as recorded"
+    if space != "galr":  # exact; an untrained tiny GaLR decodes its latents only roughly
+        assert torch.allclose(back, original, atol=1e-3 * original.abs().max())
+    ids = encoded[OBS_EMBODIMENT]
+    assert ids.shape == (3, 2), "one embodiment id per hand slot"
+    assert policy.config.action_width == len(body) + sum(encoder.slot_widths)
+
+
+def test_both_hands_of_a_g1_go_through_the_latent_each_in_its_own_slot(robots):
+    """The state after the encode step is the body, then the left hand's z, then the right hand's: each the
+    GaLR latent of that hand's joints alone."""
+    name = "g1_inspire_arms_first"
+    _, pre, _, frames = make_policy(
+        robots, name, action_space="galr", joint_map=str(robots / f"{name}.yaml"), decoded_state=False
+    )
+    encoder = next(step for step in pre.steps if isinstance(step, OpfaEncodeJointsStep))
+    batch = batch_of(frames, [3, 12])
+    transition = batch_to_transition(batch)
+    for step in pre.steps:
+        transition = step(transition)
+        if step is encoder:
+            break
+    state = transition[TransitionKey.OBSERVATION][OBS_STATE][:, -1]
+    body, (left, right) = encoder.maps[0].split(batch[OBS_STATE][:, -1], OBS_STATE)
+    latent = encoder.latent_dim
+    assert state.shape[-1] == body.shape[-1] + 2 * latent
+    assert torch.allclose(state[:, : body.shape[-1]], body)
+    for slot, q in enumerate((left, right)):
+        z = state[:, body.shape[-1] + slot * latent : body.shape[-1] + (slot + 1) * latent]
+        assert torch.allclose(z, encoder.encode(0, q), atol=1e-5), f"slot {slot}: its own hand's latent"
+    assert not torch.allclose(encoder.encode(0, left), encoder.encode(0, right)), "the two hands differ here"
+
+
+@pytest.mark.parametrize("space", ["raw", "galr"])
+def test_lerobot_train_on_a_g1_with_two_inspire_hands_then_the_checkpoint_drives_it(
+    robots, tmp_path, space, monkeypatch
+):
+    """`lerobot-train --policy.joint_map` on the G1 layout as published (no renaming); the checkpoint alone
+    turns a frame of the robot into its 26 entries, the hands' in 0..1."""
+    name, out = "g1_inspire_arms_first", tmp_path / "train"
+    flags = [
+        "--policy.type=opfa", f"--policy.action_space={space}", f"--policy.galr_path={robots / 'galr'}",
+        f"--policy.joint_map={robots / f'{name}.yaml'}", f"--dataset.repo_id=local/{name}",
+        f"--dataset.root={robots / name}", "--policy.device=cpu", "--policy.push_to_hub=false",
+        "--policy.down_dims=[16,32]", "--policy.horizon=8", "--policy.n_action_steps=4",
+        "--policy.pointcloud_widths=[16,32]", "--policy.pointcloud_feature_dim=16", "--policy.n_groups=4",
+        "--steps=2", "--batch_size=4", "--save_freq=2", "--log_freq=1", "--num_workers=0",
+        f"--output_dir={out}", "--wandb.enable=false",
+    ]  # fmt: skip
+    run_lerobot_here("lerobot_train", flags, monkeypatch)
+    checkpoint = out / "checkpoints" / "last" / "pretrained_model"
+    policy = OpfaPolicy.from_pretrained(checkpoint)
+    assert policy.config.robots == [[0, 0]] and policy.config.embodiments == ["inspire"]
+    pre, post = make_pre_post_processors(policy.config, pretrained_path=str(checkpoint))
+    frame = LeRobotDataset(f"local/{name}", root=robots / name)[3]
+    with torch.no_grad():
+        action = post(
+            policy.select_action(pre({OBS_STATE: frame[OBS_STATE], OBS_POINTCLOUD: frame[OBS_POINTCLOUD]}))
+        )
+    assert action.shape == (1, 26)
+    hands = action[0, 14:]
+    assert ((hands > -0.05) & (hands < 1.05)).all(), f"the hands' entries in 0..1: {hands}"
