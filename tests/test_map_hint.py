@@ -1,5 +1,5 @@
 """The closest-hand hint of a dataset whose entries match no hand: hand joints proposed only for entries that
-name their finger, one map per side of a two-armed robot, hands of one structure told apart by names and
+name their finger, one slot per side of a two-armed robot, hands of one structure told apart by names and
 recorded ranges, and the units of entries recorded in degrees or 0..1000."""
 
 from __future__ import annotations
@@ -46,13 +46,12 @@ def features_of(names: list[str]) -> dict:
 
 
 def proposed_maps(message: str) -> dict[str | None, dict]:
-    """The joint maps the error proposes, by the side their comment names (None: a one-handed robot)."""
-    text = message[message.index("to check line by line:\n") :].split("\n", 1)[1]
-    maps = {}
-    for block in text.split("\n\n"):
-        side = re.match(r"# the (\w+) hand's entries", block)
-        maps[side.group(1) if side else None] = yaml.safe_load(block)
-    return maps
+    """The hands of the joint map the error proposes, by side (None: a one-handed robot), and (key "map")
+    the whole map."""
+    proposed = yaml.safe_load(message[message.index("to check line by line:\n") :].split("\n", 1)[1])
+    if "slots" not in proposed:
+        return {None: proposed, "map": proposed}
+    return {slot.pop("side"): slot for slot in [dict(s) for s in proposed["slots"]]} | {"map": proposed}
 
 
 def hint(features: dict, robot_type: str, root: Path | None = None) -> str:
@@ -69,10 +68,13 @@ def identify_hand_error(names: list[str]) -> str:
 
 
 @pytest.mark.parametrize("hand", [DEX3, G1_INSPIRE], ids=["dex3", "inspire"])
-def test_a_two_armed_robot_gets_a_map_per_side_of_its_hand_entries_only(hand):
+def test_a_two_armed_robot_gets_a_slot_per_side_of_its_hand_entries_only(hand):
     names = g1_names(hand)
     maps = proposed_maps(hint(features_of(names), "g1"))
+    whole = maps.pop("map")
     assert set(maps) == {"left", "right"}
+    if hand == G1_INSPIRE:
+        JointMap.from_dict(whole).bind(names, names)  # the proposal is a map as it stands
     for side, proposed in maps.items():
         spec = load_spec(proposed["hand"])
         hand_entries = {f"k{side.title()}Hand{joint}" for joint in hand}
@@ -85,18 +87,17 @@ def test_a_two_armed_robot_gets_a_map_per_side_of_its_hand_entries_only(hand):
             assert proposed["joints"][f"k{side.title()}HandThumbRotation"] == "thumb_yaw"
             assert proposed["joints"][f"k{side.title()}HandThumbBend"] == "thumb_bend"
             assert proposed["joints"][f"k{side.title()}HandPinky"] == "little_mcp_flex"
-            JointMap.from_dict(proposed).bind(names, names)  # each side's map is a map of its own
 
 
 def test_a_bimanual_arms_gripper_entries_go_to_a_gripper_and_its_arm_entries_nowhere():
     names = [f"{side}_{joint}.pos" for side in ("left", "right") for joint in SO101]
     maps = proposed_maps(hint(features_of(names), "bi_so101_follower"))
+    JointMap.from_dict(maps.pop("map")).bind(names, names)
     assert set(maps) == {"left", "right"}
     for side, proposed in maps.items():
         spec = load_spec(proposed["hand"])
         assert spec.kind == "gripper"
         assert proposed["joints"] == {f"{side}_gripper.pos": spec.actuated_joints[0]}
-        JointMap.from_dict(proposed).bind(names, names)
 
 
 @pytest.fixture(scope="module")

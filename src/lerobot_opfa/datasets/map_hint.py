@@ -3,9 +3,10 @@ to start from (what `identify_hand`'s error prints).
 
 Entry names are read as words, whatever their case (`kLeftHandThumb0`, `right_hand.ring_mcp_side.pos`): a
 side, a finger, a motion. Only an entry that names a finger is proposed for a hand joint (an arm's
-`left_shoulder_pan.pos` never is); a two-armed robot gets a hand and a map per side. Where the dataset
-records its entries' ranges, the ranges pick between hands of the same structure and names (the one whose
-limits they fit) and propose the units of entries that plainly are not the spec's (degrees, 0..1000).
+`left_shoulder_pan.pos` never is); a two-armed robot gets a hand per side, each a slot of one map. Where
+the dataset records its entries' ranges, the ranges pick between hands of the same structure and names (the
+one whose limits they fit) and propose the units of entries that plainly are not the spec's (degrees,
+0..1000).
 """
 
 from __future__ import annotations
@@ -181,26 +182,40 @@ def units_from_range(
 
 
 def map_to_write(
-    names: list[str],
-    spec: HandSpec,
-    alternatives: list[HandSpec] = (),
+    sides: dict[str | None, tuple[list[str], HandSpec, list[HandSpec]]],
     ranges: dict[str, tuple[float, float]] | None = None,
-    side: str | None = None,
 ) -> str:
-    """A joint map for `spec` pairing each joint with an entry of its finger (`_pairs`), with the units the
-    recorded `ranges` suggest: a start for the user to check line by line, as YAML. `side`: the side of a
-    two-armed robot whose entries these are, said in a comment (a map holds one hand)."""
-    pairs = _pairs(names, spec)
-    limits = _limits(spec) if ranges else {}
-    units = {j: units_from_range(ranges[e], limits[j]) for j, e in pairs.items() if ranges and e in ranges}
-    others = f"  # or {', '.join(a.name for a in alternatives)}: as close" if alternatives else ""
-    lines = [f"# the {side} hand's entries: a map (a file) of its own"] if side else []
-    if any(units.values()):
+    """A joint map pairing each joint of a side's hand with an entry of its finger (`_pairs`), with the
+    units the recorded `ranges` suggest: a start for the user to check line by line, as YAML. `sides`: per
+    side (None: a one-handed robot's), its entries, its closest hand and the hands as close; a two-armed
+    robot's map holds one slot per side."""
+    hands = {side: _hand_lines(*hand, ranges) for side, hand in sides.items()}
+    lines = []
+    if any(scaled for _, scaled in hands.values()):
         lines.append(
             "# scale/offset: inferred from the recorded ranges (meta/stats.json) and the joint limits; "
             "check them, and each sign"
         )
-    lines += [f"hand: {hand_ref(spec)}{others}", "joints:"]
+    if None in hands:
+        return "\n".join(lines + hands[None][0])
+    lines.append("slots:  # one per hand")
+    for side, (hand, _) in hands.items():
+        lines += [f"  - side: {side}", *("    " + line for line in hand)]
+    return "\n".join(lines)
+
+
+def _hand_lines(
+    names: list[str],
+    spec: HandSpec,
+    alternatives: list[HandSpec],
+    ranges: dict[str, tuple[float, float]] | None,
+) -> tuple[list[str], bool]:
+    """The `hand` and `joints` lines of one hand's map, and whether any joint has inferred units."""
+    pairs = _pairs(names, spec)
+    limits = _limits(spec) if ranges else {}
+    units = {j: units_from_range(ranges[e], limits[j]) for j, e in pairs.items() if ranges and e in ranges}
+    others = f"  # or {', '.join(a.name for a in alternatives)}: as close" if alternatives else ""
+    lines = [f"hand: {hand_ref(spec)}{others}", "joints:"]
     for joint, entry in pairs.items():
         scaled = units.get(joint)
         value = f"{{joint: {joint}, scale: {scaled[0]:.6g}, offset: {scaled[1]:.6g}}}" if scaled else joint
@@ -208,4 +223,4 @@ def map_to_write(
     missing = [j for j in spec.joints if j not in pairs]
     if missing:
         lines.append(f"  # no entry names the finger of: {', '.join(missing)}")
-    return "\n".join(lines)
+    return lines, any(units.values())
