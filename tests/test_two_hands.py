@@ -22,6 +22,7 @@ from subprocesses import run_lerobot_here
 from test_map_hint import G1_ARM, G1_INSPIRE, SO101
 from test_policy import batch_of, make_policy, save_galr
 
+from lerobot_opfa import cli
 from lerobot_opfa.datasets.io import read_columns
 from lerobot_opfa.datasets.joint_map import JointMap, JointMapError
 from lerobot_opfa.datasets.synthetic import write_synthetic_dataset
@@ -67,6 +68,12 @@ ROBOTS = {
         [*(f"kLeft{j}" for j in G1_ARM), *(f"kLeftHand{j}" for j in G1_INSPIRE),
          *(f"kRight{j}" for j in G1_ARM), *(f"kRightHand{j}" for j in G1_INSPIRE)],
         [g1_inspire_slot(side) for side in SIDES],
+    ),
+    "g1_xhand": (  # the same G1 arms, XHand hands (entries named after the spec's joints)
+        ("xhand", "xhand"),
+        [*(f"k{s}{j}" for s in ("Left", "Right") for j in G1_ARM),
+         *(f"k{s}Hand_{j}" for s in ("Left", "Right") for j in load_hand("xhand").joint_names)],
+        [named_slot(side, "xhand", f"k{side.title()}Hand_") for side in SIDES],
     ),
     "bi_so_follower": (  # SO-101 arms, each gripper 0 (closed) .. 100 (open) as the 2F-85's knuckle
         ("robotiq_2f85", "robotiq_2f85"),
@@ -136,6 +143,11 @@ def robots(tmp_path_factory) -> Path:
         )
     for name in ROBOTS:
         write_robot(root, sources, name)
+    names = ("g1_inspire_arms_first", "g1_xhand")
+    merge = ["dataset", "merge", "--inputs", *(str(root / n) for n in names), "--output",
+             str(root / "g1_merged"), "--galr", str(root / "galr"), "--joint-maps",
+             *(f"{root / n}={root / f'{n}.yaml'}" for n in names)]  # fmt: skip
+    assert cli.main(merge) == 0
     return root
 
 
@@ -229,32 +241,75 @@ def test_both_hands_of_a_g1_go_through_the_latent_each_in_its_own_slot(robots):
     assert not torch.allclose(encoder.encode(0, left), encoder.encode(0, right)), "the two hands differ here"
 
 
-@pytest.mark.parametrize("space", ["raw", "galr"])
-def test_lerobot_train_on_a_g1_with_two_inspire_hands_then_the_checkpoint_drives_it(
-    robots, tmp_path, space, monkeypatch
-):
-    """`lerobot-train --policy.joint_map` on the G1 layout as published (no renaming); the checkpoint alone
-    turns a frame of the robot into its 26 entries, the hands' in 0..1."""
-    name, out = "g1_inspire_arms_first", tmp_path / "train"
-    flags = [
+def _train_flags(robots: Path, dataset: str, space: str, out: Path) -> list[str]:
+    joint_map = [] if dataset == "g1_merged" else [f"--policy.joint_map={robots / f'{dataset}.yaml'}"]
+    return [
         "--policy.type=opfa", f"--policy.action_space={space}", f"--policy.galr_path={robots / 'galr'}",
-        f"--policy.joint_map={robots / f'{name}.yaml'}", f"--dataset.repo_id=local/{name}",
-        f"--dataset.root={robots / name}", "--policy.device=cpu", "--policy.push_to_hub=false",
-        "--policy.down_dims=[16,32]", "--policy.horizon=8", "--policy.n_action_steps=4",
-        "--policy.pointcloud_widths=[16,32]", "--policy.pointcloud_feature_dim=16", "--policy.n_groups=4",
-        "--steps=2", "--batch_size=4", "--save_freq=2", "--log_freq=1", "--num_workers=0",
-        f"--output_dir={out}", "--wandb.enable=false",
+        *joint_map, f"--dataset.repo_id=local/{dataset}", f"--dataset.root={robots / dataset}",
+        "--policy.device=cpu", "--policy.push_to_hub=false", "--policy.down_dims=[16,32]",
+        "--policy.horizon=8", "--policy.n_action_steps=4", "--policy.pointcloud_widths=[16,32]",
+        "--policy.pointcloud_feature_dim=16", "--policy.n_groups=4", "--steps=2", "--batch_size=4",
+        "--save_freq=2", "--log_freq=1", "--num_workers=0", f"--output_dir={out}", "--wandb.enable=false",
     ]  # fmt: skip
-    run_lerobot_here("lerobot_train", flags, monkeypatch)
+
+
+@pytest.mark.parametrize(
+    ("dataset", "space", "trainer"),
+    [("g1_inspire_arms_first", "raw", "lerobot-train"), ("g1_inspire_arms_first", "galr", "lerobot-train"),
+     ("g1_merged", "galr", "lerobot-opfa train")],
+)  # fmt: skip
+def test_a_trained_g1_checkpoint_alone_turns_its_frames_into_its_26_entries(
+    robots, tmp_path, dataset, space, trainer, monkeypatch
+):
+    """`lerobot-train --policy.joint_map` on the G1 layout as published (no renaming), or `lerobot-opfa train`
+    on the merge of two G1s; the checkpoint alone turns a frame of the Inspire G1 into its 26 entries, the
+    hands' in 0..1."""
+    out, name = tmp_path / "train", "g1_inspire_arms_first"
+    flags = _train_flags(robots, dataset, space, out)
+    if trainer == "lerobot-train":
+        run_lerobot_here("lerobot_train", flags, monkeypatch)
+    else:
+        assert cli.main(["train", *flags]) == 0
     checkpoint = out / "checkpoints" / "last" / "pretrained_model"
     policy = OpfaPolicy.from_pretrained(checkpoint)
-    assert policy.config.robots == [[0, 0]] and policy.config.embodiments == ["inspire"]
-    pre, post = make_pre_post_processors(policy.config, pretrained_path=str(checkpoint))
+    robots_trained = [[0, 0]] if dataset == name else [[0, 0], [1, 1]]
+    assert policy.config.robots == robots_trained
+    overrides = {} if dataset == name else {"opfa_encode_joints": {"hand": "inspire+inspire"}}
+    pre, post = make_pre_post_processors(
+        policy.config, pretrained_path=str(checkpoint), preprocessor_overrides=overrides
+    )
     frame = LeRobotDataset(f"local/{name}", root=robots / name)[3]
+    observation = {OBS_STATE: frame[OBS_STATE], OBS_POINTCLOUD: frame[OBS_POINTCLOUD]}
     with torch.no_grad():
-        action = post(
-            policy.select_action(pre({OBS_STATE: frame[OBS_STATE], OBS_POINTCLOUD: frame[OBS_POINTCLOUD]}))
-        )
+        action = post(policy.select_action(pre(observation)))
     assert action.shape == (1, 26)
     hands = action[0, 14:]
     assert ((hands > -0.05) & (hands < 1.05)).all(), f"the hands' entries in 0..1: {hands}"
+
+
+def test_two_g1s_with_different_hands_merge_and_co_train_and_each_gets_its_own_entries_back(robots):
+    """A G1 with Inspire hands and a G1 with XHand hands share their arms: one merge (each slot's universal
+    joints and cached z, one id per slot; the `robots` fixture), one policy, and each robot's frames come
+    back in its entries."""
+    names = ("g1_inspire_arms_first", "g1_xhand")
+    features = LeRobotDatasetMetadata("local/g1_merged", root=robots / "g1_merged").features
+    assert features[OBS_EMBODIMENT]["shape"] == (2,)
+    assert features[OBS_EMBODIMENT]["names"] == ["inspire", "xhand"]
+    assert {"left.index_mcp_flex", "right.z0"} <= set(features[OBS_STATE]["names"])
+    ids = torch.tensor(read_columns(robots / "g1_merged", [OBS_EMBODIMENT])[OBS_EMBODIMENT])
+    for space in ("per_embodiment", "galr"):
+        policy, pre, post, frames = make_policy(robots, "g1_merged", action_space=space)
+        assert policy.config.robots == [[0, 0], [1, 1]]
+        now = policy.config.n_obs_steps - 1  # the chunk's step of the frame itself
+        for robot, name in enumerate(names):
+            mine = torch.nonzero((ids == robot).all(1))[:, 0]
+            rows = mine[[2, 5, 12]].tolist()
+            original = torch.tensor(read_columns(robots / name, [ACTION])[ACTION])
+            _, back, encoded = _round_trip(pre, post, frames, rows)
+            assert torch.equal(encoded[OBS_EMBODIMENT], torch.tensor([[robot, robot]] * 3))
+            expected = original[[r - int(mine[0]) for r in rows]]
+            assert back.shape[-1] == expected.shape[-1], f"{name}: its own entries"
+            if space == "per_embodiment":
+                assert torch.allclose(back[:, now], expected, atol=1e-4), f"{name}: its entries, order, units"
+        loss, _ = policy.forward(pre(batch_of(frames, [2, 5, 40, 45])))
+        assert loss.isfinite()

@@ -3,8 +3,10 @@
 Two layouts are understood, both read from `meta/info.json` feature names:
 - native: one hand; `observation.state` / `action` = wrist entries, then that hand's actuated joints
   (names from its spec, any order);
-- merged (written by `lerobot-opfa dataset merge`): wrist entries, the universal joints, optionally the
-  cached GaLR latents `z0..`; `observation.embodiment` names the hands its ids index.
+- merged (written by `lerobot-opfa dataset merge`): the body entries, then per hand slot the universal
+  joints and optionally the cached GaLR latents `z0..` (each prefixed by the slot's side on a two-handed
+  robot: `left.index_mcp_flex`, `left.z0`); `observation.embodiment` names the hands its ids index, one id
+  per slot.
 
 A dataset of a user's hand records its spec (path and hash) in `meta/opfa.json`, so every later command finds
 the hand from the dataset alone; `meta/info.json` keeps a copy, which LeRobot's editing tools keep too.
@@ -53,6 +55,8 @@ class DatasetLayout:
     joints); None: the same."""
     robots: list[list[int]] = field(default_factory=list)
     """Per joint map (a robot), the embodiment each of its hand slots holds."""
+    sides: list[str | None] = field(default_factory=lambda: [None])
+    """The side of each hand slot ([None]: one hand, its side unsaid)."""
 
 
 def feature_names(features: dict, key: str) -> list[str]:
@@ -66,6 +70,12 @@ def feature_names(features: dict, key: str) -> list[str]:
 
 def latent_names(latent_dim: int) -> list[str]:
     return [f"{LATENT_PREFIX}{i}" for i in range(latent_dim)]
+
+
+def merged_names(body: list[str], sides: list[str | None], latent_dim: int) -> list[str]:
+    """A merged dataset's state/action entries: the body's, then per slot its universal joints and z."""
+    hand = [*UNIVERSAL_JOINT_NAMES, *latent_names(latent_dim)]
+    return [*body, *(f"{side}.{name}" if side else name for side in sides for name in hand)]
 
 
 def _hand_candidates(hands: list[str] | None) -> list[str]:
@@ -131,7 +141,8 @@ def lost_record(features: dict, record: dict, root: Path | str | None) -> str | 
     are of a GaLR only its record (`opfa_record`) names (a dataset merged before `meta/info.json` kept a copy,
     then edited with LeRobot's tools, which drop `meta/opfa.json`)."""
     names = feature_names(features, OBS_STATE) if OBS_STATE in features else []
-    cached = OBS_EMBODIMENT in features and latent_names(1)[0] in names
+    z0 = latent_names(1)[0]
+    cached = OBS_EMBODIMENT in features and any(n == z0 or n.endswith(f".{z0}") for n in names)
     if not cached or root is None or record.get("galr_fingerprint"):
         return None
     return (
@@ -189,13 +200,17 @@ def read_layout(
                 f"a merged dataset's '{ACTION}' and '{OBS_STATE}' must name the same entries"
             )
         embodiments = feature_names(features, OBS_EMBODIMENT)
-        universal = list(UNIVERSAL_JOINT_NAMES)
-        starts = [i for i in range(len(names)) if names[i : i + len(universal)] == universal]
+        first, universal = UNIVERSAL_JOINT_NAMES[0], list(UNIVERSAL_JOINT_NAMES)
+        starts = [i for i, n in enumerate(names) if n == first or n.endswith(f".{first}")]
         if not starts:
             raise JointNameError(f"a merged dataset's state must hold the universal joints {universal}")
-        wrist, rest = names[: starts[0]], names[starts[0] + len(universal) :]
-        if rest and rest != latent_names(len(rest)):
-            raise JointNameError(f"unexpected entries after the universal joints: {rest}")
+        wrist, sides = names[: starts[0]], [names[i].removesuffix(first).rstrip(".") or None for i in starts]
+        latent_dim = (len(names) - len(wrist)) // len(sides) - len(universal)
+        if names != merged_names(wrist, sides, latent_dim):
+            raise JointNameError(
+                f"unexpected entries after the body {wrist}: a merged dataset holds per hand slot the "
+                f"universal joints, then z0.. ({', '.join(names[len(wrist) : len(wrist) + 3])} ...)"
+            )
         specs = {}
         for spec in map(load_spec, candidates):
             specs.setdefault(spec.name, spec)
@@ -205,10 +220,17 @@ def read_layout(
                 f"{root}: hand(s) {unknown} are neither built in nor recorded by the dataset (meta/opfa.json)"
             )
         refs = [hand_ref(specs[h]) for h in embodiments]
-        maps = [_recorded_map(record, specs[h], wrist) for h in embodiments]
+        robots = record.get("robots") or [[i] for i in range(len(embodiments))]
+        if len(robots[0]) != len(sides):
+            raise ValueError(
+                f"{root}: a merge of two-handed robots that lost its {OPFA_META_FILE} (which robots it "
+                "holds); merge the inputs again"
+            )
+        maps = [_recorded_map(record, [specs[embodiments[e]] for e in robot], wrist) for robot in robots]
         fingerprint = record.get("galr_fingerprint")
-        robots = [[i] for i in range(len(embodiments))]
-        return DatasetLayout("merged", embodiments, refs, wrist, maps, len(rest), fingerprint, robots=robots)
+        return DatasetLayout(
+            "merged", embodiments, refs, wrist, maps, latent_dim, fingerprint, robots=robots, sides=sides
+        )
     if joint_map is None:
         spec = identify_hand(names, robot_type, candidates, root)
         joint_map = JointMap.named_after(spec, names, actions)
@@ -228,14 +250,18 @@ def read_layout(
         [joint_map],
         action_body_names=None if action_body == state_body else action_body,
         robots=[[embodiments.index(slot.spec.name) for slot in joint_map.slots]],
+        sides=[slot.side for slot in joint_map.slots],
     )
 
 
-def _recorded_map(record: dict, spec: HandSpec, wrist: list[str]) -> JointMap:
-    """How the robot of a merged dataset's hand laid out its vectors: the map its input was merged with, or
-    (a dataset of this package's simulator) the body entries, then the joints under their own names."""
-    recorded = record.get("joint_maps", {}).get(spec.name)
+def _recorded_map(record: dict, specs: list[HandSpec], wrist: list[str]) -> JointMap:
+    """How a robot of a merged dataset (its slots' hands `specs`) laid out its vectors: the map its input was
+    merged with, or (a dataset of this package's simulator, one hand) the body entries, then the joints
+    under their own names."""
+    robot = "+".join(spec.name for spec in specs)
+    recorded = record.get("joint_maps", {}).get(robot)
     if recorded is not None:
-        return JointMap.from_dict(recorded, f"the joint map of '{spec.name}' recorded in {OPFA_META_FILE}")
+        return JointMap.from_dict(recorded, f"the joint map of '{robot}' recorded in {OPFA_META_FILE}")
+    (spec,) = specs
     names = [*wrist, *spec.actuated_joints]
     return JointMap.named_after(spec, names, names)

@@ -1,10 +1,11 @@
-"""`lerobot-opfa dataset merge`: per-hand LeRobotDatasets -> one cross-embodiment LeRobotDataset (v3).
+"""`lerobot-opfa dataset merge`: per-robot LeRobotDatasets -> one cross-embodiment LeRobotDataset (v3).
 
-Hands have different joint counts, so the merged state/action use one layout for all: the wrist entries,
-the universal joints (zero where a hand has none), and, when a
-GaLR is given, the latent z of every state and action frame, computed once here so that training in GaLR
-space costs what a raw-joint step costs. `observation.embodiment` holds the hand's index (its feature names
-list the hands). Point clouds stay flattened (N*3,) so LeRobot's own dataset tools keep working.
+Hands have different joint counts, so the merged state/action use one layout for all: the body entries,
+then per hand slot the universal joints (zero where a hand has none) and, when a GaLR is given, the latent z
+of that hand, computed once here so that training in GaLR space costs what a raw-joint step costs
+(`layout.merged_names`). `observation.embodiment` holds each slot's hand index (its feature names list the
+hands). Robots co-train when they share their body entries and their number of hands, whatever hands they
+hold. Point clouds stay flattened (N*3,) so LeRobot's own dataset tools keep working.
 """
 
 from __future__ import annotations
@@ -30,12 +31,12 @@ from lerobot_opfa.datasets.layout import (
     DatasetLayout,
     feature_names,
     hand_entry,
-    latent_names,
+    merged_names,
     opfa_record,
     read_layout,
 )
 from lerobot_opfa.datasets.statistics import column_statistics, noise_floor, raw_noise, write_statistics
-from lerobot_opfa.features import OBS_EMBODIMENT, OBS_POINTCLOUD
+from lerobot_opfa.features import OBS_EMBODIMENT, OBS_POINTCLOUD, column_embodiments
 from lerobot_opfa.galr import checkpoints
 from lerobot_opfa.galr.frozen import (
     encode_joints,
@@ -84,11 +85,6 @@ def _open(root: Path, hands: list[str] | None, joint_maps: list[JointMap], bound
     layout = read_layout(meta.features, meta.robot_type, root, hands, joint_map)
     if layout.kind != "native":
         raise ValueError(f"{root} is already a merged dataset; merge the per-hand datasets it came from")
-    if len(slots := layout.joint_maps[0].slots) > 1:
-        raise ValueError(
-            f"{root}: a robot with {len(slots)} hands; `dataset merge` merges one-handed robots (train on a "
-            "two-handed robot's dataset alone: --policy.joint_map)"
-        )
     if layout.action_body_names is not None:
         raise ValueError(
             f"{root}: its action's body entries {layout.action_body_names} are not its state's "
@@ -163,7 +159,7 @@ def merge_datasets(
     unused = [m.source for m in maps if not any(i.layout.joint_maps[0].source == m.source for i in opened)]
     if unused:
         raise ValueError(f"joint map(s) {unused} fit none of the inputs (their entries are in no input)")
-    wrist = opened[0].layout.wrist_names
+    wrist, sides = opened[0].layout.wrist_names, _sides(opened[0])
     fps = opened[0].meta.fps
     for i in opened:
         if i.layout.wrist_names != wrist or i.meta.fps != fps:
@@ -171,14 +167,18 @@ def merge_datasets(
                 f"inputs disagree: {i.root} has body entries {i.layout.wrist_names} at {i.meta.fps} fps, "
                 f"{opened[0].root} has {wrist} at {fps} fps"
             )
-    embodiments = list(dict.fromkeys(i.layout.embodiments[0] for i in opened))
+        if _sides(i) != sides:
+            raise ValueError(
+                f"inputs disagree: {i.root} has hands on sides {_sides(i)}, {opened[0].root} on {sides}; "
+                "a merge holds robots with the same hand slots"
+            )
+    embodiments = list(dict.fromkeys(h for i in opened for h in _slot_hands(i)))
     if galr is not None:
         unknown = [h for h in embodiments if h not in galr.config.hand_names]
         if unknown:
             raise ValueError(f"hand(s) {unknown} are not in the GaLR registry ({galr.config.hand_names})")
     latent_dim = galr.config.latent_dim if galr is not None else 0
-    universal = list(UNIVERSAL_JOINT_NAMES)
-    names = [*wrist, *universal, *latent_names(latent_dim)]
+    names = merged_names(wrist, sides, latent_dim)
     extra, cameras = _passthrough(opened), _cameras(opened)
     _check_visual(opened, [*extra, *cameras])
     kept = {OBS_STATE, ACTION, *BOOKKEEPING, *extra, *cameras}
@@ -188,7 +188,7 @@ def merge_datasets(
     features = {
         OBS_STATE: {"dtype": "float32", "shape": (len(names),), "names": names},
         ACTION: {"dtype": "float32", "shape": (len(names),), "names": names},
-        OBS_EMBODIMENT: {"dtype": "int64", "shape": (1,), "names": embodiments},
+        OBS_EMBODIMENT: {"dtype": "int64", "shape": (len(sides),), "names": embodiments},
         **extra,
         **cameras,
     }
@@ -202,11 +202,13 @@ def merge_datasets(
             for source in opened:
                 _append(merged, source, embodiments, galr, list(extra), list(cameras), progress)
         merged.finalize()
-        write_statistics(partial, _statistics(partial, embodiments, galr, len(wrist)))
-        refs = {i.layout.embodiments[0]: i.layout.hand_refs[0] for i in opened}
+        write_statistics(partial, _statistics(partial, embodiments, galr, len(wrist), len(sides)))
+        refs = {h: r for i in opened for h, r in zip(i.layout.embodiments, i.layout.hand_refs, strict=True)}
         user_hands = {name: hand_entry(load_spec(ref)) for name, ref in refs.items() if ref != name}
+        robots = list(dict.fromkeys(tuple(embodiments.index(h) for h in _slot_hands(i)) for i in opened))
         meta = {
             "embodiments": embodiments,
+            **({"robots": [list(r) for r in robots]} if len(sides) > 1 else {}),
             "inputs": [str(i.root) for i in opened],
             "latent_dim": latent_dim,
             "hands": user_hands,
@@ -222,18 +224,25 @@ def merge_datasets(
     return Path(output)
 
 
-def _statistics(root: Path, embodiments: list[str], galr, n_wrist: int) -> dict[str, torch.Tensor]:
-    """Per-embodiment statistics of the merged state and action, and the noise floor of the cached z: what
-    the opfa processors fit their normalisation to (`statistics.STATS_FILE`)."""
+def _statistics(
+    root: Path, embodiments: list[str], galr, n_wrist: int, slots: int
+) -> dict[str, torch.Tensor]:
+    """Per-embodiment statistics of the merged state and action (each entry by its slot's hand), and the
+    noise floor of the cached z: what the opfa processors fit their normalisation to
+    (`statistics.STATS_FILE`)."""
     frames = read_columns(root, [OBS_STATE, ACTION, OBS_EMBODIMENT])
-    ids = torch.tensor(frames[OBS_EMBODIMENT], dtype=torch.long).view(-1)
+    ids = torch.tensor(frames[OBS_EMBODIMENT], dtype=torch.long).view(len(frames[OBS_STATE]), slots)
+    width = (frames[OBS_STATE].shape[-1] - n_wrist) // slots
+    columns = column_embodiments(ids, [n_wrist] + [width] * slots)
     out = {}
     for key in (OBS_STATE, ACTION):
-        stats = column_statistics(torch.tensor(frames[key], dtype=torch.float32), ids, len(embodiments))
+        stats = column_statistics(torch.tensor(frames[key], dtype=torch.float32), columns, len(embodiments))
         out |= {f"{key}.{name}": value for name, value in stats.items()}
     if galr is not None:
         state = torch.tensor(frames[OBS_STATE], dtype=torch.float32)
-        out["latent_noise_floor"] = _latent_noise_floor(galr, embodiments, state, ids, n_wrist)
+        parts = state[:, n_wrist:].reshape(len(state), slots, width)  # each slot's hand as a frame of its own
+        hands = torch.cat([state[:, :n_wrist].repeat(slots, 1), parts.transpose(0, 1).reshape(-1, width)], 1)
+        out["latent_noise_floor"] = _latent_noise_floor(galr, embodiments, hands, ids.T.reshape(-1), n_wrist)
     return out
 
 
@@ -250,34 +259,48 @@ def _latent_noise_floor(galr, embodiments: list[str], state: torch.Tensor, ids: 
     return floor[0]
 
 
+def _sides(source: _Input) -> list[str | None]:
+    """The sides of an input's hand slots ([None]: a one-handed robot)."""
+    return [slot.side for slot in source.layout.joint_maps[0].slots]
+
+
+def _slot_hands(source: _Input) -> list[str]:
+    """The hand of each of an input's slots."""
+    return [source.layout.embodiments[e] for e in source.layout.robots[0]]
+
+
 def _deployed_maps(opened: list[_Input]) -> dict[str, dict]:
     """Per hand, the joint map its robot's vectors were merged with: what a policy trained on the merged
     dataset saves, to speak that robot's entries when deployed."""
     maps = {}
     for source in opened:
-        joint_map = source.layout.joint_maps[0]
-        first = maps.setdefault(source.layout.embodiments[0], joint_map.to_dict())
+        joint_map, robot = source.layout.joint_maps[0], "+".join(_slot_hands(source))
+        first = maps.setdefault(robot, joint_map.to_dict())
         if first != joint_map.to_dict():
             logger.warning(
-                "inputs of hand '%s' lay out their entries differently; a policy trained on this dataset "
+                "inputs of hand(s) '%s' lay out their entries differently; a policy trained on this dataset "
                 "drives the robot of the first (%s)",
-                source.layout.embodiments[0],
+                robot,
                 opened[0].root,
             )
     return maps
 
 
-def _hand(source: _Input, galr) -> HandModel:
-    ref = source.layout.hand_refs[0]
-    return load_hand(ref) if galr is None else galr.hand(source.layout.embodiments[0])[0]
+def _hands(source: _Input, galr) -> list[HandModel]:
+    """The hand model of each of an input's slots (the GaLR's, where one is given)."""
+    refs = [source.layout.hand_refs[e] for e in source.layout.robots[0]]
+    return [
+        load_hand(r) if galr is None else galr.hand(h)[0]
+        for r, h in zip(refs, _slot_hands(source), strict=True)
+    ]
 
 
 def _check_limits(source: _Input, galr) -> None:
     """Every state and action frame of the input finite and within its hand's joint limits (before
     anything is written: latents of values out of range would be cached without a word)."""
-    hand, joint_map = _hand(source, galr), source.layout.joint_maps[0]
+    hands, joint_map = _hands(source, galr), source.layout.joint_maps[0]
     for key, values in read_columns(source.root, [OBS_STATE, ACTION]).items():
-        body, (q,) = joint_map.split(torch.tensor(values, dtype=torch.float64), key)
+        body, qs = joint_map.split(torch.tensor(values, dtype=torch.float64), key)
         bad = ~body.isfinite()
         if bad.any():
             entry = joint_map.body_names(key)[int(bad.any(0).nonzero()[0])]
@@ -285,8 +308,10 @@ def _check_limits(source: _Input, galr) -> None:
                 f"{source.root}: {key} is not finite (NaN or inf) in {int(bad.any(1).sum())} of {len(body)} "
                 f"frames, first in entry '{entry}'"
             )
-        hand.check_within_limits(q, f"{source.root} ({key}, through {joint_map.source})")
-        joint_map.check_spans(torch.tensor(values), key, [(hand.lower, hand.upper)])
+        for hand, q, slot in zip(hands, qs, joint_map.slots, strict=True):
+            side = f", {slot.side} hand" if slot.side else ""
+            hand.check_within_limits(q, f"{source.root} ({key}, through {joint_map.source}{side})")
+        joint_map.check_spans(torch.tensor(values), key, [(hand.lower, hand.upper) for hand in hands])
 
 
 CAMERA_DTYPES = ("image", "video")
@@ -360,20 +385,21 @@ def _camera_frame(image: torch.Tensor, feature: dict) -> np.ndarray:
 def _append(
     merged, source: _Input, embodiments, galr, extra: list[str], cameras: list[str], progress
 ) -> None:
-    hand, joint_map = _hand(source, galr), source.layout.joint_maps[0]
+    hands, joint_map = _hands(source, galr), source.layout.joint_maps[0]
     columns = read_columns(source.root, [OBS_STATE, ACTION, *extra, *BOOKKEEPING])
     tasks = {int(row.task_index): task for task, row in source.meta.tasks.iterrows()}
-    embodiment = np.array([embodiments.index(hand.name)], np.int64)
+    embodiment = np.array([embodiments.index(hand.name) for hand in hands], np.int64)
     if cameras:  # decoded frame by frame, as LeRobot serves them
         frames = LeRobotDataset(f"local/{source.root.name}", root=source.root)
         position = {int(index): i for i, index in enumerate(frames.hf_dataset["index"])}
 
     def to_layout(values: np.ndarray, key: str) -> np.ndarray:
-        body, (q,) = joint_map.split(torch.tensor(values, dtype=torch.float64), key)
-        q = q.float()
-        parts = [body.numpy(), hand.to_universal(q).cpu().numpy()]
-        if galr is not None:
-            parts.append(encode_joints(galr, hand.name, q).cpu().numpy())
+        body, qs = joint_map.split(torch.tensor(values, dtype=torch.float64), key)
+        parts = [body.numpy()]
+        for hand, q in zip(hands, qs, strict=True):
+            parts.append(hand.to_universal(q.float()).cpu().numpy())
+            if galr is not None:
+                parts.append(encode_joints(galr, hand.name, q.float()).cpu().numpy())
         return np.concatenate(parts, axis=1).astype(np.float32)
 
     episodes = columns["episode_index"]

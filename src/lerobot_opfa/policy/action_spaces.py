@@ -83,9 +83,10 @@ class ActionSpace:
     def n_heads(self, n_embodiments: int) -> int:
         return 1
 
-    def merged_columns(self, n_wrist: int, latent_dim: int | None) -> list[int] | None:
-        """The columns of a merged dataset's state or action (wrist, universal joints, then the cached z
-        when `latent_dim` is given) that are this space's entries as they are, or None if none are."""
+    def merged_columns(self, n_wrist: int, latent_dim: int | None, slots: int = 1) -> list[int] | None:
+        """The columns of a merged dataset's state or action (the body, then per hand slot its universal
+        joints and its cached z of `latent_dim` entries, 0: none cached) that are this space's entries as
+        they are, or None if none are."""
         return None
 
     def from_joints(self, hands: Hands, index: int, q: Tensor) -> Tensor:
@@ -115,11 +116,12 @@ class GalrSpace(ActionSpace):
     def hand_names(self, hands, index):
         return latent_names(hands.latent_dim)
 
-    def merged_columns(self, n_wrist, latent_dim):
-        if latent_dim is None:
+    def merged_columns(self, n_wrist, latent_dim, slots=1):
+        if not latent_dim:
             return None
-        start = n_wrist + len(UNIVERSAL_JOINT_NAMES)
-        return [*range(n_wrist), *range(start, start + latent_dim)]
+        u, width = len(UNIVERSAL_JOINT_NAMES), len(UNIVERSAL_JOINT_NAMES) + latent_dim
+        z = [n_wrist + s * width + u + i for s in range(slots) for i in range(latent_dim)]
+        return [*range(n_wrist), *z]
 
     def from_joints(self, hands, index, q):
         return hands.encode(index, q)
@@ -177,8 +179,10 @@ class PerEmbodimentSpace(ActionSpace):
     def n_heads(self, n_embodiments):
         return n_embodiments
 
-    def merged_columns(self, n_wrist, latent_dim):
-        return list(range(n_wrist + len(UNIVERSAL_JOINT_NAMES)))
+    def merged_columns(self, n_wrist, latent_dim, slots=1):
+        u = len(UNIVERSAL_JOINT_NAMES)
+        width = u + latent_dim
+        return [*range(n_wrist), *(n_wrist + s * width + i for s in range(slots) for i in range(u))]
 
     def from_joints(self, hands, index, q):
         return hands.model(index).to_universal(q)

@@ -354,10 +354,10 @@ class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
         simulator = (hand := obs.pop(OBS_HAND, None)) is not None
         live = not isinstance(action, torch.Tensor)  # a robot's (training frames carry their action)
         if OBS_EMBODIMENT in obs:
-            ids = frame_embodiments(obs[OBS_EMBODIMENT]).to(state.device)
+            ids = frame_embodiments(obs[OBS_EMBODIMENT], len(self.robots[0])).to(state.device)
 
             def convert(x, key):
-                return self._from_universal(x, ids[:, 0], key, live)
+                return self._from_universal(x, ids, key, live)
         else:
             robot = self.robot_index(hand)
             ids = torch.tensor(self.robots[robot], device=state.device).expand(len(state), -1)
@@ -426,18 +426,26 @@ class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
             self._decoded_caches[index] = LatentCache(round_trip)
         return self._decoded_caches[index](z, keep=True)
 
-    # --- merged layout: wrist + universal joints [+ cached z] ----------------------------------------
+    # --- merged layout: body, then per slot the universal joints [+ cached z] ---------------------------
     def _from_universal(self, x: torch.Tensor, ids: torch.Tensor, key: str, live: bool) -> torch.Tensor:
-        w, u = self.wrist_dim, self.wrist_dim + len(UNIVERSAL_JOINT_NAMES)
-        if self.use_cached_latents and x.shape[-1] == u + self.latent_dim:
-            hand = x[..., u:]
-        else:
-            hand = self.space.from_universal(self, x[..., w:u], ids)
-        if self._decodes_state(key, live):
-            hand = hand.clone()
-            for index in ids.unique().tolist():
-                hand[ids == index] = self.as_decoded(index, hand[ids == index])
-        return torch.cat([x[..., :w], hand], dim=-1)
+        """A merged dataset's rows (`layout.merged_names`) of robots with slot embodiments `ids` (B, slots)
+        -> the policy space. Rows without the cached z (a noisy copy) have them encoded."""
+        w, u, slots = self.wrist_dim, len(UNIVERSAL_JOINT_NAMES), ids.shape[-1]
+        cached = self.use_cached_latents and x.shape[-1] == w + slots * (u + self.latent_dim)
+        width = (x.shape[-1] - w) // slots
+        parts = [x[..., :w]]
+        for slot, start in enumerate(range(w, x.shape[-1], width)):
+            if cached:
+                hand = x[..., start + u : start + width]
+            else:
+                hand = self.space.from_universal(self, x[..., start : start + u], ids[:, slot])
+            if self._decodes_state(key, live):
+                hand = hand.clone()
+                for index in ids[:, slot].unique().tolist():
+                    rows = ids[:, slot] == index
+                    hand[rows] = self.as_decoded(index, hand[rows])
+            parts.append(hand)
+        return torch.cat(parts, dim=-1)
 
     def get_config(self) -> dict[str, Any]:
         pinned = {} if self.hand is None else {"hand": self.hand}

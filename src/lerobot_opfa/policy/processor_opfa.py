@@ -49,7 +49,7 @@ from lerobot_opfa.galr.model import Galr
 from lerobot_opfa.hands.registry import load_spec
 from lerobot_opfa.hands.universal import UNIVERSAL_JOINT_NAMES
 from lerobot_opfa.pointclouds import DepthRig, DepthRigError
-from lerobot_opfa.policy.action_spaces import universal_mask
+from lerobot_opfa.policy.action_spaces import PerEmbodimentSpace, universal_mask
 from lerobot_opfa.policy.configuration_opfa import OpfaConfig
 from lerobot_opfa.policy.depth_step import DepthToPointCloudStep
 from lerobot_opfa.policy.joint_steps import OpfaDecodeJointsStep, OpfaEncodeJointsStep, PointCloudBatchStep
@@ -184,15 +184,15 @@ def _merge_statistics(
 ) -> Fitted | None:
     decoded = encoder.decoded_state and config.space.uses_galr  # the merge saw the demonstrated states
     stats = read_statistics(root) if layout.kind == "merged" and not decoded else None
-    cached = encoder.use_cached_latents  # the merge that cached them wrote their noise floor
-    wrist, n = len(config.wrist_names), len(config.embodiments)
-    columns = config.space.merged_columns(wrist, config.latent_dim if cached else None)
+    wrist, n, slots = len(config.wrist_names), len(config.embodiments), len(layout.sides)
+    columns = config.space.merged_columns(wrist, layout.latent_dim, slots)
     if stats is None or columns is None:
         return None
-    mask = torch.cat([torch.ones(n, wrist), universal_mask(config.embodiment_joints)], dim=1)
-    noise = raw_noise(wrist, list(UNIVERSAL_JOINT_NAMES)) * mask
-    floors = [noise] + ([stats["latent_noise_floor"].expand(n, -1)] if cached else [])
-    floor = torch.cat(floors, dim=1)[:, columns]
+    noise = raw_noise(wrist, list(UNIVERSAL_JOINT_NAMES)).expand(n, -1)
+    hand = [noise[:, wrist:] * universal_mask(config.embodiment_joints)]
+    if layout.latent_dim:  # the merge that cached them wrote their noise floor
+        hand.append(stats["latent_noise_floor"].expand(n, -1))
+    floor = torch.cat([noise[:, :wrist], *hand * slots], dim=1)[:, columns]
     state, action = (
         {
             name: value if name == "count" else value[..., columns]
@@ -225,8 +225,9 @@ def _frame_statistics(
     ids = out[TransitionKey.OBSERVATION][OBS_EMBODIMENT]
     wrist = len(config.wrist_names)
     if merged:  # the joints only (cached z would not move with them)
-        raw = frames[OBS_STATE][:, : wrist + len(UNIVERSAL_JOINT_NAMES)]
-        noise = raw_noise(wrist, list(UNIVERSAL_JOINT_NAMES))
+        slots = len(layout.sides)
+        raw = frames[OBS_STATE][:, PerEmbodimentSpace().merged_columns(wrist, layout.latent_dim, slots)]
+        noise = raw_noise(wrist, list(UNIVERSAL_JOINT_NAMES) * slots)
     else:  # the robot's entries, each with its joint's noise in the robot's units
         raw = frames[OBS_STATE]
         joints = [raw_noise(0, encoder.model(index).spec.universal_names) for index in layout.robots[0]]
@@ -296,11 +297,16 @@ def check_trainable_frames(config: OpfaConfig, layout: DatasetLayout, root: Path
     columns = ["episode_index"] + ([OBS_EMBODIMENT] if layout.kind == "merged" else [])
     frames = dataset_io.read_columns(root, columns)  # two bookkeeping columns, not the frames' values
     episodes, first, lengths = np.unique(frames["episode_index"], return_index=True, return_counts=True)
-    hands = frames[OBS_EMBODIMENT].reshape(-1)[first] if layout.kind == "merged" else np.zeros_like(first)
+    slots = len(layout.sides)
+    ids = (
+        frames[OBS_EMBODIMENT].reshape(len(frames["episode_index"]), slots)[first]
+        if layout.kind == "merged"
+        else None
+    )
     drop = config.drop_n_last_frames
-    robots = layout.embodiments if layout.kind == "merged" else ["+".join(layout.embodiments)]
-    for index, hand in enumerate(robots):
-        mine = lengths[hands == index]
+    for slot_ids in layout.robots:
+        hand = "+".join(layout.embodiments[e] for e in slot_ids)
+        mine = lengths if ids is None else lengths[(ids == slot_ids).all(axis=1)]
         if not len(mine):
             raise ValueError(
                 f"{root} has no episode of hand '{hand}', though its observation.embodiment lists it: they "
@@ -329,10 +335,9 @@ class PolicySpaceSteps:
 
 def hand_entry_names(config: OpfaConfig, layout: DatasetLayout, encode: OpfaEncodeJointsStep) -> list[str]:
     """The names of the policy's entries after the body: each hand slot's (`left.z0`, ... for two)."""
-    slots = layout.joint_maps[0].slots if layout.kind == "native" else [None]
     names = []
-    for index, slot in zip(layout.robots[0], slots, strict=True):
-        prefix = f"{slot.side}." if slot is not None and len(slots) > 1 else ""
+    for index, side in zip(layout.robots[0], layout.sides, strict=True):
+        prefix = f"{side}." if side is not None and len(layout.sides) > 1 else ""
         names += [prefix + name for name in config.space.hand_names(encode, index)]
     return names
 
