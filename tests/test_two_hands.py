@@ -143,6 +143,10 @@ def robots(tmp_path_factory) -> Path:
         )
     for name in ROBOTS:
         write_robot(root, sources, name)
+    for name in ROBOTS:  # each alone, as a merge of one input
+        alone = ["dataset", "merge", "--inputs", str(root / name), "--output", str(root / f"{name}_merged"),
+                 "--galr", str(root / "galr"), "--joint-maps", str(root / f"{name}.yaml")]  # fmt: skip
+        assert cli.main(alone) == 0
     names = ("g1_inspire_arms_first", "g1_xhand")
     merge = ["dataset", "merge", "--inputs", *(str(root / n) for n in names), "--output",
              str(root / "g1_merged"), "--galr", str(root / "galr"), "--joint-maps",
@@ -194,16 +198,23 @@ def _round_trip(pre, post, frames, rows) -> tuple[torch.Tensor, torch.Tensor, di
     return original, back[TransitionKey.ACTION], encoded
 
 
+@pytest.mark.parametrize("merged", [False, True], ids=["as_recorded", "merged"])
 @pytest.mark.parametrize("space", ["raw", "per_embodiment", "galr"])
 @pytest.mark.parametrize("name", sorted(ROBOTS))
-def test_a_two_handed_robots_actions_come_back_in_its_entries_order_and_units(robots, name, space):
+def test_a_two_handed_robots_actions_come_back_in_its_entries_order_and_units(robots, name, space, merged):
+    """As recorded (through its map) or merged alone (the merge records the map), each layout trains in
+    each space and its actions come back in the robot's entries."""
     hands, names, _ = ROBOTS[name]
-    policy, pre, post, frames = make_policy(
-        robots, name, action_space=space, joint_map=str(robots / f"{name}.yaml")
-    )
+    through = {} if merged else {"joint_map": str(robots / f"{name}.yaml")}
+    dataset = f"{name}_merged" if merged else name
+    policy, pre, post, frames = make_policy(robots, dataset, action_space=space, **through)
     encoder = next(step for step in pre.steps if isinstance(step, OpfaEncodeJointsStep))
     assert [encoder.embodiments[e] for e in encoder.robots[0]] == list(hands)
-    original, back, encoded = _round_trip(pre, post, frames, [0, 5, 9])
+    rows = [0, 5, 9]
+    _, back, encoded = _round_trip(pre, post, frames, rows)
+    delta = {ACTION: frames.delta_timestamps[ACTION]}
+    recorded = LeRobotDataset(f"local/{name}", root=robots / name, delta_timestamps=delta)
+    original = batch_of(recorded, rows)[ACTION]  # a merge keeps its input's frames in order
     assert back.shape == original.shape and back.shape[-1] == len(names)
     joint_map = encoder.maps[0]
     body = joint_map.body_names(ACTION)

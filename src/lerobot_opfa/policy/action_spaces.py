@@ -158,7 +158,8 @@ class RawSpace(ActionSpace):
         return q
 
     def from_universal(self, hands, universal, ids):
-        return hands.model(0).from_universal(universal)
+        index = int(ids.reshape(-1)[0]) if ids.numel() else 0  # the one robot's hand in this slot
+        return hands.model(index).from_universal(universal)
 
     def to_joints(self, hands, index, rest):
         return rest
