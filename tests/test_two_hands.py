@@ -324,3 +324,16 @@ def test_two_g1s_with_different_hands_merge_and_co_train_and_each_gets_its_own_e
                 assert torch.allclose(back[:, now], expected, atol=1e-4), f"{name}: its entries, order, units"
         loss, _ = policy.forward(pre(batch_of(frames, [2, 5, 40, 45])))
         assert loss.isfinite()
+
+
+def test_a_latent_dataset_of_two_g1s_holds_the_arms_then_a_latent_per_side(robots, tmp_path):
+    """The stock-policy path (`policy latent-dataset`) on the merge of two two-handed G1s: body, then a
+    latent per slot, named by side."""
+    out = tmp_path / "latent"
+    latent = ["policy", "latent-dataset", "--input", str(robots / "g1_merged"), "--output", str(out),
+              "--galr", str(robots / "galr")]  # fmt: skip
+    assert cli.main(latent) == 0
+    names = LeRobotDatasetMetadata("local/latent", root=out).features[OBS_STATE]["names"]
+    body = [f"k{s}{j}" for s in ("Left", "Right") for j in G1_ARM]
+    latent_dim = len([n for n in names if n.startswith("left.z")])
+    assert latent_dim > 0 and names == [*body, *(f"{s}.z{i}" for s in SIDES for i in range(latent_dim))]
