@@ -98,10 +98,7 @@ class OpfaSimEnv(gym.Env):
         self.data = mujoco.MjData(self.model)
         self.n_substeps = max(1, round(1.0 / (fps * self.model.opt.timestep)))
         self.wrist_qvel = np.array([self.model.jnt_dofadr[self.model.joint(j).id] for j in WRIST_JOINTS])
-        self.ctrl_index = np.array(
-            [self.model.actuator(f"act_{j}").id for j in WRIST_JOINTS]
-            + [self.model.actuator(f"hand/act_{j}").id for j in self.hand_model.joint_names]
-        )
+        self.ctrl_index = self.scene.ctrl
         self.hand_open = self.hand_model.pose("open").double().cpu().numpy()
         self.hand_open_all = (
             self.hand_model.expand(self.hand_model.pose("open")[None])[0].double().cpu().numpy()

@@ -71,7 +71,8 @@ class ScriptedExpert:
         else:
             self.closed = np.clip(self.open + SQUEEZE * (self.grasp - self.open), self.lower, self.upper)
         self.tool = env.scene.tool
-        self.start = Waypoint(np.array([*HOME[:3], HOME[3]]), 0.0, 1)
+        home = getattr(env, "home", HOME)  # an arm of a two-armed env stands to its side
+        self.start = Waypoint(np.array([*home[:3], home[3]]), 0.0, 1)
         self.plan = self._plan()
         self.schedule = np.cumsum([w.steps for w in self.plan])
         self.t = 0

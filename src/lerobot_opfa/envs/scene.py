@@ -1,5 +1,6 @@
 """The MuJoCo scene shared by every task: a table, cameras, and a floating 6-DoF wrist (three slides and
-three hinges with position servos, gravity-compensated) carrying any registered hand in its tool frame."""
+three hinges with position servos, gravity-compensated) carrying any registered hand in its tool frame;
+two of them, named `left/...` and `right/...`, for two hands."""
 
 from __future__ import annotations
 
@@ -38,7 +39,7 @@ LOOK_AT = (0.02, 0.0, 0.06)
 
 @dataclass
 class Scene:
-    """A compiled scene and the addresses an env needs to read and drive it."""
+    """A compiled scene and the addresses an env needs to read and drive one arm (a wrist and its hand)."""
 
     model: mujoco.MjModel
     hand: HandModel
@@ -48,6 +49,7 @@ class Scene:
     chain_qpos: np.ndarray  # qpos addresses of every hand joint, in `hand.chain_joint_names` order
     hand_geoms: np.ndarray  # geom ids of the hand
     table_geom: int
+    ctrl: np.ndarray  # actuator ids of the wrist's six joints, then the hand's, in spec order
 
 
 def look_at(pos: tuple[float, float, float], target: tuple[float, float, float]) -> list[float]:
@@ -62,11 +64,12 @@ def look_at(pos: tuple[float, float, float], target: tuple[float, float, float])
     return quat.tolist()
 
 
-def _add_carriage(spec: mujoco.MjSpec) -> mujoco.MjsBody:
+def _add_carriage(spec: mujoco.MjSpec, prefix: str = "") -> mujoco.MjsBody:
     """Six nested bodies, one joint each; returns the last (the tool frame, approach axis pointing down)."""
     parent = spec.worldbody
     axes = np.eye(3)
-    for i, name in enumerate(WRIST_JOINTS):
+    for i, joint in enumerate(WRIST_JOINTS):
+        name = f"{prefix}{joint}"
         body = parent.add_body(name=name, mass=0.05, inertia=[1e-4, 1e-4, 1e-4], gravcomp=1.0)
         kind = mujoco.mjtJoint.mjJNT_SLIDE if i < 3 else mujoco.mjtJoint.mjJNT_HINGE
         # yaw about z, then pitch about y, then roll about x: R = Rz Ry Rx
@@ -79,7 +82,9 @@ def _add_carriage(spec: mujoco.MjSpec) -> mujoco.MjsBody:
             armature=0.01,
             damping=0.0,
         )
-        actuator = spec.add_actuator(name=f"act_{name}", target=name, trntype=mujoco.mjtTrn.mjTRN_JOINT)
+        actuator = spec.add_actuator(
+            name=f"{prefix}act_{joint}", target=name, trntype=mujoco.mjtTrn.mjTRN_JOINT
+        )
         actuator.set_to_position(kp=WRIST_KP[i], kv=WRIST_KV[i])
         actuator.ctrlrange = WRIST_RANGE[i].tolist()
         actuator.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
@@ -87,7 +92,7 @@ def _add_carriage(spec: mujoco.MjSpec) -> mujoco.MjsBody:
         actuator.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
         parent = body
     # the tool's approach axis (+z) points down at zero angles: a half turn about x
-    return parent.add_body(name="tool", quat=[0.0, 1.0, 0.0, 0.0], gravcomp=1.0)
+    return parent.add_body(name=f"{prefix}tool", quat=[0.0, 1.0, 0.0, 0.0], gravcomp=1.0)
 
 
 def base_spec() -> mujoco.MjSpec:
@@ -122,15 +127,21 @@ def base_spec() -> mujoco.MjSpec:
 
 def attach_hand(spec: mujoco.MjSpec, hand: HandModel) -> Scene:
     """Mount the hand on the wrist carriage in its tool frame, compile, and index the result."""
+    tool = mount_hand(spec, hand)
+    return index_arm(spec.compile(), hand, tool)
+
+
+def mount_hand(spec: mujoco.MjSpec, hand: HandModel, prefix: str = "") -> ToolFrame:
+    """Add a wrist carriage named `prefix...` and the hand on it, in its tool frame (`prefix` + `hand/`)."""
     tool = tool_frame(hand)
     rot, pos = tool.hand_in_tool()
     quat = np.zeros(4)
     mujoco.mju_mat2Quat(quat, np.ascontiguousarray(rot).ravel())
-    frame = _add_carriage(spec).add_frame(pos=pos.tolist(), quat=quat.tolist())
+    frame = _add_carriage(spec, prefix).add_frame(pos=pos.tolist(), quat=quat.tolist())
     child = hand_mjspec(hand)
     child.option.integrator = spec.option.integrator  # the scene's options win; say so to avoid a warning
-    spec.attach(child, frame=frame, prefix="hand/")
-    hand_bodies = [body for body in spec.bodies if body.name.startswith("hand/")]
+    spec.attach(child, frame=frame, prefix=f"{prefix}hand/")
+    hand_bodies = [body for body in spec.bodies if body.name.startswith(f"{prefix}hand/")]
     for body in hand_bodies:
         body.gravcomp = 1.0
     # A hand with visual geoms is seen through them (by cameras and depth sensors alike); its collision
@@ -142,17 +153,29 @@ def attach_hand(spec: mujoco.MjSpec, hand: HandModel) -> Scene:
                 geom.group = COLLISION_GROUP
     for key in list(spec.keys):  # the hand's keyframes cover only its own joints
         spec.delete(key)
-    model = spec.compile()
-    hand_bodies = {i for i in range(model.nbody) if model.body(i).name.startswith("hand/")}
+    return tool
+
+
+def index_arm(model: mujoco.MjModel, hand: HandModel, tool: ToolFrame, prefix: str = "") -> Scene:
+    """The addresses of the arm `mount_hand` added under `prefix`, in the compiled `model`."""
+    hand_bodies = {i for i in range(model.nbody) if model.body(i).name.startswith(f"{prefix}hand/")}
+
+    def qpos(joints: list[str]) -> np.ndarray:
+        return np.array([model.jnt_qposadr[model.joint(j).id] for j in joints])
+
     return Scene(
         model=model,
         hand=hand,
         tool=tool,
-        wrist_qpos=np.array([model.jnt_qposadr[model.joint(j).id] for j in WRIST_JOINTS]),
-        hand_qpos=np.array([model.jnt_qposadr[model.joint(f"hand/{j}").id] for j in hand.joint_names]),
-        chain_qpos=np.array([model.jnt_qposadr[model.joint(f"hand/{j}").id] for j in hand.chain_joint_names]),
+        wrist_qpos=qpos([f"{prefix}{j}" for j in WRIST_JOINTS]),
+        hand_qpos=qpos([f"{prefix}hand/{j}" for j in hand.joint_names]),
+        chain_qpos=qpos([f"{prefix}hand/{j}" for j in hand.chain_joint_names]),
         hand_geoms=np.array([g for g in range(model.ngeom) if model.geom_bodyid[g] in hand_bodies]),
         table_geom=model.geom("table").id,
+        ctrl=np.array(
+            [model.actuator(f"{prefix}act_{j}").id for j in WRIST_JOINTS]
+            + [model.actuator(f"{prefix}hand/act_{j}").id for j in hand.joint_names]
+        ),
     )
 
 
