@@ -52,3 +52,38 @@ def test_the_two_armed_expert_lifts_the_tray_level_and_one_arm_alone_never_does(
     assert sum(run_expert(env, seed) for seed in range(8)) >= 7
     assert not any(run_expert(env, seed, one_arm=True) for seed in range(4)), "one hand folds the tray"
     assert set(env.task.handles(env.placement)) == set(SIDES)
+
+
+def test_two_hand_demos_train_one_policy_that_lerobot_eval_runs_in_the_two_armed_env(tmp_path, monkeypatch):
+    """`sim demos` of `lift_tray` with Inspire on the left and XHand on the right records the joint map of
+    its entries; `lerobot-opfa train` reads it (a latent per hand) and `lerobot-eval --env.type=opfa` runs
+    the checkpoint in the two-armed env, its actions through the same map."""
+    import json
+
+    from subprocesses import run_lerobot_here
+
+    from lerobot_opfa import cli
+    from lerobot_opfa.policy.modeling_opfa import OpfaPolicy
+
+    demos, out = tmp_path / "demos", tmp_path / "train"
+    scene = ["--n-points", "64", "--pointcloud-source", "geometry"]
+    record = ["sim", "demos", "--task", "lift_tray", "--hand", "inspire+xhand", "--episodes", "2",
+              "--regions", "mid_center", "--output-dir", str(demos), *scene]  # fmt: skip
+    assert cli.main(record) == 0
+    train = ["train", "--policy.type=opfa", "--dataset.repo_id=local/demos", f"--dataset.root={demos}",
+             "--policy.device=cpu", "--policy.push_to_hub=false", "--policy.down_dims=[16,32]",
+             "--policy.horizon=8", "--policy.n_action_steps=4", "--policy.pointcloud_widths=[16,32]",
+             "--policy.pointcloud_feature_dim=16", "--policy.n_groups=4", "--steps=2", "--batch_size=4",
+             "--save_freq=2", "--num_workers=0", f"--output_dir={out}", "--wandb.enable=false"]  # fmt: skip
+    assert cli.main(train) == 0
+    checkpoint = out / "checkpoints" / "last" / "pretrained_model"
+    config = OpfaPolicy.from_pretrained(checkpoint).config
+    assert config.embodiments == ["inspire", "xhand"] and config.robots == [[0, 1]]
+    assert config.action_width == 12 + 2 * config.latent_dim
+    evaluate = [f"--policy.path={checkpoint}", "--env.type=opfa", "--env.task=lift_tray",
+                "--env.hand=inspire+xhand", "--env.n_points=64", "--env.pointcloud_source=geometry",
+                "--env.regions=mid_center", "--eval.n_episodes=1", "--eval.batch_size=1",
+                f"--output_dir={tmp_path / 'eval'}", "--env.episode_length=20"]  # fmt: skip
+    run_lerobot_here("lerobot_eval", evaluate, monkeypatch)
+    info = json.loads((tmp_path / "eval" / "eval_info.json").read_text())
+    assert info["overall"]["n_episodes"] == 1

@@ -70,6 +70,11 @@ def joint_of(entry: str) -> str:
     return entry.removesuffix(POSITION_SUFFIX)
 
 
+def sided(side: str, name: str) -> str:
+    """An entry of one side of a two-armed robot, as LeRobot's bimanual robots name them: `left_<name>`."""
+    return f"{side}_{name}"
+
+
 class JointMapError(ValueError):
     """A joint map that does not fit its dataset or its hand; the message names the map and the entry."""
 
@@ -245,6 +250,19 @@ class JointMap:
         joints = {entries.get(j, j): MappedJoint(j) for j in spec.actuated_joints}
         slot = HandSlot(hand_ref(spec), joints)
         return cls((slot,), source=f"hand '{spec.name}'").bind(state_names, action_names)
+
+    @classmethod
+    def of_arms(cls, arms: dict[str, HandSpec], body: list[str]) -> JointMap:
+        """The map of a two-armed robot whose entries are, per side, its `body` entries, then its hand's
+        joints in spec order and units, each named `<side>_<name>` (the two-armed simulator's)."""
+        names = [sided(side, n) for side, spec in arms.items() for n in (*body, *spec.actuated_joints)]
+        slots = tuple(
+            HandSlot(
+                hand_ref(spec), {sided(side, j): MappedJoint(j) for j in spec.actuated_joints}, side=side
+            )
+            for side, spec in arms.items()
+        )
+        return cls(slots, source=f"hands {'+'.join(spec.name for spec in arms.values())}").bind(names, names)
 
     @property
     def hands(self) -> list[str]:

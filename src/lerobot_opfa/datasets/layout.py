@@ -231,6 +231,8 @@ def read_layout(
         return DatasetLayout(
             "merged", embodiments, refs, wrist, maps, latent_dim, fingerprint, robots=robots, sides=sides
         )
+    if joint_map is None and "joint_map" in record:  # a dataset that says which entries are which hand
+        joint_map = JointMap.from_dict(record["joint_map"], f"the joint map recorded in {OPFA_META_FILE}")
     if joint_map is None:
         spec = identify_hand(names, robot_type, candidates, root)
         joint_map = JointMap.named_after(spec, names, actions)

@@ -15,7 +15,8 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
-from lerobot_opfa.envs.env import POINTCLOUD_SOURCES, check_choice, parse_cameras
+from lerobot_opfa.datasets.joint_map import JointMap
+from lerobot_opfa.envs.env import POINTCLOUD_SOURCES, OpfaSimEnv, check_choice, parse_cameras
 from lerobot_opfa.envs.experts import ScriptedExpert
 from lerobot_opfa.envs.observation import DepthPointCloud, GeometryPointCloud
 from lerobot_opfa.envs.regions import REGIONS, parse_regions
@@ -38,7 +39,7 @@ SIDES = ("left", "right")
 HOME_Y = 0.16
 """m: each wrist's home this far to its side of the table's centre line."""
 SETTLE_STEPS = 20
-OBS_TYPES = ("pointcloud", "state", "pointcloud_state")
+TWO_HAND_OBS_TYPES = ("pointcloud", "state", "pointcloud_state")
 BIMANUAL_HAND_SEPARATOR = "+"
 """Hands of a two-armed robot in one name, left first: `inspire+xhand`."""
 
@@ -193,7 +194,7 @@ class OpfaBimanualEnv(gym.Env):
         self.task = BIMANUAL_TASKS[check_choice("two-hand task", task, list(BIMANUAL_TASKS))]()
         self.hand_models = dict(zip(SIDES, map(load_hand, parse_hands(hands)), strict=True))
         self.regions = parse_regions(regions)
-        self.obs_type = check_choice("obs_type", obs_type, OBS_TYPES)
+        self.obs_type = check_choice("obs_type", obs_type, TWO_HAND_OBS_TYPES)
         self.pointcloud_source = check_choice("pointcloud source", pointcloud_source, POINTCLOUD_SOURCES)
         self.depth_cameras = parse_cameras(depth_cameras)
         self.n_points, self.render_mode = n_points, render_mode
@@ -232,17 +233,36 @@ class OpfaBimanualEnv(gym.Env):
         return self.task.description
 
     @property
+    def joint_map(self) -> JointMap:
+        """How its state and action hold the wrists and the hands: `left_wrist_x`, ..., `left_<joint>`,
+        ..., then the right arm's."""
+        specs = {side: hand.spec for side, hand in self.hand_models.items()}
+        return JointMap.of_arms(specs, list(WRIST_JOINTS))
+
+    @property
     def state_names(self) -> list[str]:
-        """`left_wrist_x`, ..., `left_<joint>`, ..., then the right arm's: each side's wrist and hand."""
-        return [
-            f"{side}_{name}"
-            for side, hand in self.hand_models.items()
-            for name in (*WRIST_JOINTS, *hand.joint_names)
-        ]
+        return list(self.joint_map.state_names)
 
     @property
     def action_names(self) -> list[str]:
         return self.state_names
+
+    @property
+    def hand_name(self) -> str:
+        """The robot by its hands, left first (`inspire+xhand`): what a policy's pipeline names it by."""
+        return BIMANUAL_HAND_SEPARATOR.join(hand.name for hand in self.hand_models.values())
+
+    def command(self, targets: np.ndarray) -> np.ndarray:
+        """The action that takes the wrists and hands to `targets` (what the scripted expert gives)."""
+        return targets
+
+    @property
+    def hands_by_side(self) -> dict[str, HandModel]:
+        return dict(self.hand_models)
+
+    def hand_readings(self) -> dict[str, np.ndarray]:
+        """Each side's hand joints as the simulator holds them now."""
+        return {side: self.data.qpos[arm.hand_qpos] for side, arm in self.scene.arms.items()}
 
     def arm(self, side: str) -> ArmView:
         """One arm as a single-hand expert reads an env."""
@@ -351,3 +371,21 @@ class BimanualExpert:
     @property
     def done(self) -> bool:
         return all(expert.done for expert in self.experts)
+
+
+def sim_env(
+    task: str, hand: str, regions: str | list[str] = "all", **options
+) -> OpfaSimEnv | OpfaBimanualEnv:
+    """The env of a task: two arms for a two-hand task (`hand` names both, `inspire+xhand`), else one."""
+    if task in BIMANUAL_TASKS:
+        if options.pop("control", "joints") != "joints":
+            raise ValueError(f"two-hand task '{task}' takes control joints")
+        options.pop("rgb_cameras", None)
+        return OpfaBimanualEnv(task, hand, regions, **options)
+    return OpfaSimEnv(task, hand, regions, **options)
+
+
+def scripted_expert(
+    env: OpfaSimEnv | OpfaBimanualEnv, rng: np.random.Generator
+) -> ScriptedExpert | BimanualExpert:
+    return (BimanualExpert if isinstance(env, OpfaBimanualEnv) else ScriptedExpert)(env, rng)

@@ -45,7 +45,11 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
 
 def _scene_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--task", required=True)
-    parser.add_argument("--hand", required=True, help="built-in name or path to a spec.yaml")
+    parser.add_argument(
+        "--hand", required=True,
+        help="built-in name or path to a spec.yaml; for a two-hand task (lift_tray) one per side, left "
+        "first: inspire+xhand",
+    )  # fmt: skip
     parser.add_argument("--regions", default="all", help="comma-separated region names, or 'all'")
     parser.add_argument("--seed", type=int, default=0)
 

@@ -12,11 +12,17 @@ from lerobot.envs.configs import EnvConfig
 from lerobot.processor import ObservationProcessorStep, PolicyProcessorPipeline
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGES, OBS_STATE
 
+from lerobot_opfa.envs.bimanual import (
+    BIMANUAL_HAND_SEPARATOR,
+    BIMANUAL_TASKS,
+    TWO_HAND_OBS_TYPES,
+    parse_hands,
+)
 from lerobot_opfa.envs.control import EE_ACTION_NAMES, EE_STATE_NAMES, check_control
 from lerobot_opfa.envs.env import OBS_TYPES, POINTCLOUD_SOURCES, check_choice, parse_cameras
 from lerobot_opfa.envs.regions import parse_regions
 from lerobot_opfa.envs.scene import WRIST_JOINTS
-from lerobot_opfa.envs.tasks import ENV_STATE_DIM, TASKS, check_task
+from lerobot_opfa.envs.tasks import ENV_STATE_DIM, TASKS
 from lerobot_opfa.features import OBS_HAND, OBS_POINTCLOUD
 from lerobot_opfa.flags import flag
 from lerobot_opfa.hands.registry import load_spec
@@ -26,23 +32,34 @@ def gym_id(task: str) -> str:
     return f"opfa/{task}-v0"
 
 
-for _task in TASKS.values():
+ALL_TASKS = {**TASKS, **BIMANUAL_TASKS}
+"""Every task by name: one hand's, then two hands'."""
+
+for _task in ALL_TASKS.values():
     if gym_id(_task.name) not in gym.registry:
+        module = "bimanual:OpfaBimanualEnv" if _task.name in BIMANUAL_TASKS else "env:OpfaSimEnv"
         gym.register(
             id=gym_id(_task.name),
-            entry_point="lerobot_opfa.envs.env:OpfaSimEnv",
+            entry_point=f"lerobot_opfa.envs.{module}",
             max_episode_steps=_task.episode_steps,
             kwargs={"task": _task.name},
         )
 
 
+def check_any_task(name: str | None) -> str:
+    if name not in ALL_TASKS:
+        raise ValueError(f"unknown task '{name}'; valid tasks: {', '.join(ALL_TASKS)}")
+    return name
+
+
 @EnvConfig.register_subclass("opfa")
 @dataclass
 class OpfaEnvConfig(EnvConfig):
-    """A task of the benchmark with one hand; see `OpfaSimEnv` for the observation and action layout."""
+    """A task of the benchmark with one hand, or two (`lift_tray`); see `OpfaSimEnv` and `OpfaBimanualEnv`
+    for the observation and action layouts."""
 
     task: str | None = "lift"
-    hand: str = "leap"  # a built-in hand name or a path to a spec.yaml
+    hand: str = "leap"  # a built-in hand name or a path to a spec.yaml; two-hand tasks: left+right
     regions: str = "all"  # comma-separated region names (`lerobot-opfa sim regions`), or "all"
     obs_type: str = "pointcloud"  # pointcloud | state | pointcloud_state | rgb | pointcloud_rgb
     pointcloud_source: str = "depth"  # depth (simulated cameras) | geometry (sampled, faster)
@@ -68,7 +85,7 @@ class OpfaEnvConfig(EnvConfig):
 
     def __post_init__(self) -> None:
         with flag("env.task"):
-            check_task(self.task)
+            check_any_task(self.task)
         with flag("env.regions"):
             parse_regions(self.regions)
         with flag("env.obs_type"):
@@ -79,14 +96,23 @@ class OpfaEnvConfig(EnvConfig):
             parse_cameras(self.depth_cameras)
         with flag("env.rgb_cameras"):
             parse_cameras(self.rgb_cameras)
-        with flag("env.hand"):
-            spec = load_spec(self.hand)
-        with flag("env.control"):
-            check_control(self.control, spec.name, len(spec.joints))
-        if self.control == "ee_delta":
-            state, action = len(EE_STATE_NAMES), len(EE_ACTION_NAMES)
+        if self.two_hands:
+            with flag("env.hand"):
+                specs = [load_spec(hand) for hand in parse_hands(self.hand)]
+            with flag("env.obs_type"):
+                check_choice("obs_type of a two-hand task", self.obs_type, TWO_HAND_OBS_TYPES)
+            with flag("env.control"):
+                check_choice("control of a two-hand task", self.control, ["joints"])
+            state = action = sum(len(WRIST_JOINTS) + len(spec.joints) for spec in specs)
         else:
-            state = action = len(WRIST_JOINTS) + len(spec.joints)
+            with flag("env.hand"):
+                spec = load_spec(self.hand)
+            with flag("env.control"):
+                check_control(self.control, spec.name, len(spec.joints))
+            if self.control == "ee_delta":
+                state, action = len(EE_STATE_NAMES), len(EE_ACTION_NAMES)
+            else:
+                state = action = len(WRIST_JOINTS) + len(spec.joints)
         if self.policy_action_width is not None and self.policy_action_width < 1:
             raise ValueError(f"--env.policy_action_width: a positive width, not {self.policy_action_width}")
         action = self.policy_action_width or action
@@ -111,8 +137,18 @@ class OpfaEnvConfig(EnvConfig):
         """Tells the policy which hand the observations come from, so a cross-embodiment policy picks the
         right embodiment even when two of its hands have the same joint count. Under `ee_delta` the env
         is a robot like any other: its frames go through the joint map the policy was trained with."""
-        steps = [] if self.control == "ee_delta" else [HandNameStep(load_spec(self.hand).name)]
+        steps = [] if self.control == "ee_delta" else [HandNameStep(self.hand_name)]
         return PolicyProcessorPipeline(steps=steps), PolicyProcessorPipeline(steps=[])
+
+    @property
+    def two_hands(self) -> bool:
+        return self.task in BIMANUAL_TASKS
+
+    @property
+    def hand_name(self) -> str:
+        """The robot the frames come from, by its hands' names (`inspire`; `inspire+xhand`, left first)."""
+        hands = parse_hands(self.hand) if self.two_hands else [self.hand]
+        return BIMANUAL_HAND_SEPARATOR.join(load_spec(hand).name for hand in hands)
 
     @property
     def package_name(self) -> str:
@@ -120,10 +156,18 @@ class OpfaEnvConfig(EnvConfig):
 
     @property
     def gym_id(self) -> str:
-        return gym_id(check_task(self.task))
+        return gym_id(check_any_task(self.task))
 
     @property
     def gym_kwargs(self) -> dict:
+        steps = self.episode_length or ALL_TASKS[self.task].episode_steps
+        if self.two_hands:
+            return {
+                "hands": self.hand, "regions": self.regions, "obs_type": self.obs_type,
+                "pointcloud_source": self.pointcloud_source, "n_points": self.n_points,
+                "depth_cameras": self.depth_cameras, "fps": self.fps, "render_width": self.render_width,
+                "render_height": self.render_height, "max_episode_steps": steps,
+            }  # fmt: skip
         return {
             "hand": self.hand,
             "regions": self.regions,
@@ -137,7 +181,7 @@ class OpfaEnvConfig(EnvConfig):
             "fps": self.fps,
             "render_width": self.render_width,
             "render_height": self.render_height,
-            "max_episode_steps": self.episode_length or TASKS[self.task].episode_steps,
+            "max_episode_steps": steps,
             "control": self.control,
         }
 

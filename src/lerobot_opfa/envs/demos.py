@@ -1,5 +1,6 @@
 """Scripted demonstrations recorded as a LeRobotDataset (v3), one (task, hand) per dataset, with the
-episodes spread over the chosen regions. Only successful episodes are kept."""
+episodes spread over the chosen regions. Only successful episodes are kept. A two-hand task takes its hands
+as one name, left first (`inspire+xhand`), and its dataset records the joint map of its entries."""
 
 from __future__ import annotations
 
@@ -16,8 +17,8 @@ from tqdm.contrib.logging import logging_redirect_tqdm
 
 from lerobot_opfa.datasets.io import new_dataset
 from lerobot_opfa.datasets.layout import OPFA_META_FILE, hand_entry
+from lerobot_opfa.envs.bimanual import OpfaBimanualEnv, scripted_expert, sim_env
 from lerobot_opfa.envs.env import OpfaSimEnv
-from lerobot_opfa.envs.experts import ScriptedExpert
 from lerobot_opfa.envs.regions import parse_regions
 from lerobot_opfa.envs.tasks import ENV_STATE_DIM
 from lerobot_opfa.features import OBS_POINTCLOUD
@@ -52,7 +53,7 @@ def expert_episode(
     """Run the scripted expert for one seeded episode; returns its frames (up to its first success, then
     `hold` more) and whether it succeeded."""
     obs, _ = env.reset(seed=seed, options={"region": region} if region else None)
-    expert = ScriptedExpert(env, np.random.default_rng(seed))
+    expert = scripted_expert(env, np.random.default_rng(seed))
     frames, readings, success, held = [], [], False, 0
     steps = env.task.episode_steps
     for step in range(steps + hold):
@@ -69,18 +70,20 @@ def expert_episode(
             }
         )
         obs, _, _, _, info = env.step(action)
-        readings.append(env.data.qpos[env.scene.hand_qpos])
+        readings.append(env.hand_readings())
         success = success or bool(info["is_success"])
         if success:
             if held == hold:
                 break
             held += 1
     if success:  # training refuses a hand read past its limits: say so now, not after the recording
-        env.hand_model.check_within_limits(
-            torch.from_numpy(np.stack(readings)),
-            f"the expert's episode (seed {seed})",
-            hint="contact pushed the simulated joint past its stop; check the spec's limits and grasp pose",
-        )
+        for side, hand in env.hands_by_side.items():
+            hand.check_within_limits(
+                torch.from_numpy(np.stack([reading[side] for reading in readings])),
+                f"the expert's episode (seed {seed}" + (f", {side} hand)" if side else ")"),
+                hint="contact pushed the simulated joint past its stop; check the spec's limits and grasp "
+                "pose",
+            )
     return frames, success
 
 
@@ -102,22 +105,16 @@ def record_demos(
     appears whole or not at all (and only with `overwrite` replaces an existing folder). No successful
     episode at all is an error."""
     region_names = parse_regions(regions)
-    env = OpfaSimEnv(
-        task,
-        hand,
-        region_names,
-        obs_type="pointcloud_state",
-        pointcloud_source=pointcloud_source,
-        n_points=n_points,
-        depth_cameras=depth_cameras,
-        control=control,
-    )
+    env = sim_env(
+        task, hand, region_names, obs_type="pointcloud_state", pointcloud_source=pointcloud_source,
+        n_points=n_points, depth_cameras=depth_cameras, control=control,
+    )  # fmt: skip
     try:
         create = dict(
             repo_id=repo_id or _repo_id(env),
             fps=env.metadata["render_fps"],
             features=dataset_features(env),
-            robot_type=env.hand_model.name,
+            robot_type=env.hand_name,
             use_videos=False,
         )
         with new_dataset(output_dir, overwrite, **create) as dataset:
@@ -140,14 +137,14 @@ def failure_reason(env: OpfaSimEnv, env_states: np.ndarray) -> str:
 
 
 def _repo_id(env: OpfaSimEnv) -> str:
-    return f"local/opfa_{env.task.name}_{env.hand_model.name}"
+    return f"local/opfa_{env.task.name}_{env.hand_name.replace('+', '_')}"
 
 
 def _record(env: OpfaSimEnv, episodes: int, dataset, region_names: list[str], seed: int) -> None:
     task, root = env.task.name, dataset.root
     records, attempts, reason = [], 0, ""
     # a failed episode's line goes above the progress bar, not after it on the same line
-    with logging_redirect_tqdm(), tqdm(total=episodes, desc=f"demos {task}/{env.hand_model.name}") as bar:
+    with logging_redirect_tqdm(), tqdm(total=episodes, desc=f"demos {task}/{env.hand_name}") as bar:
         while len(records) < episodes and attempts < MAX_ATTEMPTS_PER_EPISODE * episodes:
             region = region_names[len(records) % len(region_names)]
             episode_seed = seed + attempts
@@ -167,9 +164,9 @@ def _record(env: OpfaSimEnv, episodes: int, dataset, region_names: list[str], se
             bar.update(1)
     if not records:
         raise ValueError(
-            f"no expert episode of {task} with '{env.hand_model.name}' succeeded in {attempts} attempts"
+            f"no expert episode of {task} with '{env.hand_name}' succeeded in {attempts} attempts"
             f"{f' (the last: {reason})' if reason else ''}; "
-            f"watch one with `lerobot-opfa sim show --task {task} --hand {env.hand_model.spec.path} --out "
+            f"watch one with `lerobot-opfa sim show --task {task} --hand {_hand_path(env)} --out "
             "scene.png --video expert.mp4` and check the spec's grasp pose"
         )
     dataset.finalize()
@@ -177,7 +174,7 @@ def _record(env: OpfaSimEnv, episodes: int, dataset, region_names: list[str], se
         logger.warning("only %d of %d episodes succeeded in %d attempts", len(records), episodes, attempts)
     meta = {
         "task": task,
-        "hand": env.hand_model.name,
+        "hand": env.hand_name,
         "regions": region_names,
         "seed": seed,
         "attempts": attempts,
@@ -186,8 +183,14 @@ def _record(env: OpfaSimEnv, episodes: int, dataset, region_names: list[str], se
         "depth_cameras": list(env.depth_cameras) if env.pointcloud_source == "depth" else [],
     }
     (Path(root) / "meta" / META_FILE).write_text(json.dumps({**meta, "episodes": records}, indent=2))
-    spec = env.hand_model.spec
-    if hand_ref(spec) != spec.name:  # a user's hand: later commands find it from the dataset
-        (Path(root) / OPFA_META_FILE).write_text(
-            json.dumps({"hands": {spec.name: hand_entry(spec)}}, indent=2)
-        )
+    specs = [hand.spec for hand in env.hands_by_side.values()]
+    users = {spec.name: hand_entry(spec) for spec in specs if hand_ref(spec) != spec.name}
+    record = {"hands": users} if users else {}  # a user's hand: later commands find it from the dataset
+    if isinstance(env, OpfaBimanualEnv):
+        record["joint_map"] = env.joint_map.to_dict()  # which entries are which side's hand
+    if record:
+        (Path(root) / OPFA_META_FILE).write_text(json.dumps(record, indent=2))
+
+
+def _hand_path(env: OpfaSimEnv | OpfaBimanualEnv) -> str:
+    return "+".join(str(hand.spec.path) for hand in env.hands_by_side.values())

@@ -22,6 +22,7 @@ from lerobot_opfa.envs.scene import (
     base_spec,
 )
 from lerobot_opfa.envs.tasks import ENV_STATE_DIM, Placement, make_task
+from lerobot_opfa.hands.model import HandModel
 from lerobot_opfa.hands.registry import load_hand
 
 logger = logging.getLogger(__name__)
@@ -141,6 +142,19 @@ class OpfaSimEnv(gym.Env):
     @property
     def action_names(self) -> list[str]:
         return self.state_names if self.ee is None else list(EE_ACTION_NAMES)
+
+    @property
+    def hand_name(self) -> str:
+        return self.hand_model.name
+
+    @property
+    def hands_by_side(self) -> dict[str | None, HandModel]:
+        """The hand, by side (none: one hand)."""
+        return {None: self.hand_model}
+
+    def hand_readings(self) -> dict[str | None, np.ndarray]:
+        """The hand's joints as the simulator holds them now (by side: none, one hand)."""
+        return {None: self.data.qpos[self.scene.hand_qpos]}
 
     def command(self, targets: np.ndarray) -> np.ndarray:
         """The action of this env's control that takes the wrist and hand to `targets` (what the scripted

@@ -166,13 +166,19 @@ class _HandSpace:
         return self.wrist_dim if key == OBS_STATE or self.action_wrist_dim is None else self.action_wrist_dim
 
     def robot_map(self, robot: int, simulator: bool) -> JointMap:
-        """Robot `robot`'s joint map for its frames, or for the simulator's of its one hand (the body
-        entries, then the joints in spec order: the identity)."""
+        """Robot `robot`'s joint map for its frames, or for the simulator's of its hands: the body entries,
+        then the joints in spec order (the identity); with two hands, that per side (`JointMap.of_arms`)."""
         if not simulator:
             return self.maps[robot]
         if robot not in self._simulator_maps:
-            (index,) = self.robots[robot]
-            self._simulator_maps[robot] = self._spec_order_map(self.hand_refs[index])
+            indices = self.robots[robot]
+            if len(indices) == 1:
+                self._simulator_maps[robot] = self._spec_order_map(self.hand_refs[indices[0]])
+            else:
+                sides = [slot.side for slot in self.maps[robot].slots]
+                arms = {side: load_spec(self.hand_refs[i]) for side, i in zip(sides, indices, strict=True)}
+                body = [f"body_{i}" for i in range(self.wrist_dim // len(indices))]
+                self._simulator_maps[robot] = JointMap.of_arms(arms, body)
         return self._simulator_maps[robot]
 
     def robot_of(self, ids: torch.Tensor) -> int:
