@@ -278,7 +278,7 @@ def test_the_simulator_and_a_robot_with_permuted_scaled_entries_go_through_the_s
             action = post(batch[OBS_STATE][:, None])  # the state as a one-step action: same entries
             widths[name] = action.shape[-1]
             assert [(op, key) for op, key, _ in used] == [("split", OBS_STATE), ("join", ACTION)], name
-            expected = encoder.robot_map(0, simulator=name == "simulator")
+            expected = encoder.robot_map((0,), simulator=name == "simulator")
             assert all(joint_map == expected for _, _, joint_map in used), name  # the decode step: a copy
     assert widths == {"arm": len(ARM) + len(INSPIRE), "simulator": len(ARM) + hand.dof}
 

@@ -354,7 +354,7 @@ def test_a_galr_policy_trains_on_the_hand_states_its_decoded_actions_leave(data,
         if dataset == "merged":
             body, q = state[:, :wrist], load_hand(hand).from_universal(state[:, wrist:universal])
         else:
-            body, (q,) = encoder.robot_map(index, simulator=False).split(state, OBS_STATE)
+            body, (q,) = encoder.robot_map((index,), simulator=False).split(state, OBS_STATE)
         held = encoder.decode(index, encoder.encode(index, q))  # what the hand reaches, commanded decoded
         live = {OBS_STATE: torch.cat([body, held], dim=-1), OBS_HAND: hand}  # a frame of that hand, no action
         deployed.append(encoder(create_transition(observation=live))[TransitionKey.OBSERVATION][OBS_STATE])

@@ -216,7 +216,7 @@ def test_a_two_handed_robots_actions_come_back_in_its_entries_order_and_units(ro
     recorded = LeRobotDataset(f"local/{name}", root=robots / name, delta_timestamps=delta)
     original = batch_of(recorded, rows)[ACTION]  # a merge keeps its input's frames in order
     assert back.shape == original.shape and back.shape[-1] == len(names)
-    joint_map = encoder.maps[0]
+    joint_map = encoder.robot_map(tuple(encoder.robots[0]), simulator=False)
     body = joint_map.body_names(ACTION)
     columns = [names.index(b) for b in body]
     assert torch.allclose(back[..., columns], original[..., columns], atol=1e-4), "the body as recorded"
@@ -242,7 +242,7 @@ def test_both_hands_of_a_g1_go_through_the_latent_each_in_its_own_slot(robots):
         if step is encoder:
             break
     state = transition[TransitionKey.OBSERVATION][OBS_STATE][:, -1]
-    body, (left, right) = encoder.maps[0].split(batch[OBS_STATE][:, -1], OBS_STATE)
+    body, (left, right) = encoder.robot_map((0, 0), simulator=False).split(batch[OBS_STATE][:, -1], OBS_STATE)
     latent = encoder.latent_dim
     assert state.shape[-1] == body.shape[-1] + 2 * latent
     assert torch.allclose(state[:, : body.shape[-1]], body)

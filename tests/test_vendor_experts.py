@@ -14,7 +14,7 @@ import pytest
 from conftest import DATA, example_robot_data_allegro
 
 from lerobot_opfa import cli
-from lerobot_opfa.envs import demos as demos_module
+from lerobot_opfa.envs import bimanual as experts_by_task
 from lerobot_opfa.envs.env import OpfaSimEnv
 from lerobot_opfa.envs.experts import ScriptedExpert
 from lerobot_opfa.envs.scene import HOME
@@ -115,7 +115,7 @@ class _IdleExpert(ScriptedExpert):
 
 
 def test_sim_demos_says_which_phase_failed(tmp_path, capsys, caplog, monkeypatch):
-    monkeypatch.setattr(demos_module, "ScriptedExpert", _IdleExpert)
+    monkeypatch.setattr(experts_by_task, "ScriptedExpert", _IdleExpert)  # what `sim demos` builds
     argv = ["sim", "demos", "--task", "press_button", "--hand", "umi", "--episodes", "1", "--n-points", "32",
             "--pointcloud-source", "geometry", "--output-dir", str(tmp_path / "demos")]  # fmt: skip
     assert cli.main(argv) == 2

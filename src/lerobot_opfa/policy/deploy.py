@@ -45,6 +45,6 @@ def pin_robot(policy_dir: Path | str, hand: str, output: Path | str) -> Path:
         raise ValueError(
             f"{policy_dir} does not map joints (a stock policy before `policy convert-io`): nothing to pin"
         )
-    encode.robot_index(hand)  # one of its robots, or a one-line error naming them
+    encode.robot_slots(hand)  # one of its robots, or a one-line error naming them
     encode.hand = hand
     return write_copy(policy_dir, output, pre)

@@ -145,15 +145,15 @@ class _HandSpace:
         self._latent_caches: dict[int, LatentCache] = {}
 
     def _bind_maps(self) -> None:
-        self.maps = [
-            JointMap.from_dict(m, f"the joint map of '{self.robot_name(r)}'")
-            for r, m in enumerate(self.joint_maps)
-        ]
-        self._simulator_maps: dict[int, JointMap] = {}
+        self.maps = {
+            tuple(robot): JointMap.from_dict(m, f"the joint map of '{self.robot_name(robot)}'")
+            for robot, m in zip(self.robots, self.joint_maps, strict=True)
+        }
+        self._simulator_maps: dict[tuple[int, ...], JointMap] = {}
 
-    def robot_name(self, robot: int) -> str:
-        """A robot by its hands: `inspire`, or `inspire+xhand` for two."""
-        return "+".join(self.embodiments[e] for e in self.robots[robot])
+    def robot_name(self, robot: tuple[int, ...] | list[int]) -> str:
+        """A robot by its slots' hands: `inspire`, or `inspire+xhand` for two (left first)."""
+        return "+".join(self.embodiments[e] for e in robot)
 
     def _spec_order_map(self, ref: str, joint_names: list[str] | None = None) -> JointMap:
         spec = load_spec(ref)
@@ -165,38 +165,39 @@ class _HandSpace:
         """Body entries of the policy's `key` ("observation.state" or "action")."""
         return self.wrist_dim if key == OBS_STATE or self.action_wrist_dim is None else self.action_wrist_dim
 
-    def robot_map(self, robot: int, simulator: bool) -> JointMap:
-        """Robot `robot`'s joint map for its frames, or for the simulator's of its hands: the body entries,
-        then the joints in spec order (the identity); with two hands, that per side (`JointMap.of_arms`)."""
+    def robot_map(self, robot: tuple[int, ...], simulator: bool) -> JointMap:
+        """The joint map of the robot whose slots hold embodiments `robot`, for its frames, or for the
+        simulator's of those hands: the body entries, then the joints in spec order (the identity); with
+        two hands, that per side (`JointMap.of_arms`). The simulator takes any pair of the policy's hands,
+        one it was not trained on too (each slot's hand is decoded on its own)."""
         if not simulator:
+            if robot not in self.maps:
+                raise ValueError(
+                    f"this policy drives {', '.join(map(self.robot_name, self.robots))}; it cannot drive "
+                    f"{self.robot_name(robot)}"
+                )
             return self.maps[robot]
         if robot not in self._simulator_maps:
-            indices = self.robots[robot]
-            if len(indices) == 1:
-                self._simulator_maps[robot] = self._spec_order_map(self.hand_refs[indices[0]])
+            if len(robot) == 1:
+                self._simulator_maps[robot] = self._spec_order_map(self.hand_refs[robot[0]])
             else:
-                sides = [slot.side for slot in self.maps[robot].slots]
-                arms = {side: load_spec(self.hand_refs[i]) for side, i in zip(sides, indices, strict=True)}
-                body = [f"body_{i}" for i in range(self.wrist_dim // len(indices))]
+                trained = next(m for m in self.maps.values() if len(m.slots) == len(robot))
+                sides = [slot.side for slot in trained.slots]
+                arms = {side: load_spec(self.hand_refs[i]) for side, i in zip(sides, robot, strict=True)}
+                body = [f"body_{i}" for i in range(self.wrist_dim // len(robot))]
                 self._simulator_maps[robot] = JointMap.of_arms(arms, body)
         return self._simulator_maps[robot]
 
-    def robot_of(self, ids: torch.Tensor) -> int:
+    def robot_of(self, ids: torch.Tensor) -> tuple[int, ...]:
         """The one robot of a batch's (B, slots) embodiment ids: a postprocessor decodes one robot's actions
         at a time."""
         rows = {tuple(row) for row in ids.tolist()}
         if len(rows) != 1:
-            named = sorted("+".join(self.embodiments[e] for e in row) for row in rows)
+            named = sorted(map(self.robot_name, rows))
             raise ValueError(f"a batch to decode must come from one robot, got {named}")
-        (row,) = rows
-        if list(row) not in self.robots:
-            raise ValueError(
-                f"this policy drives {', '.join(map(self.robot_name, range(len(self.robots))))}; it cannot "
-                f"drive {'+'.join(self.embodiments[e] for e in row)}"
-            )
-        return self.robots.index(list(row))
+        return rows.pop()
 
-    def check_width(self, x: torch.Tensor, robot: int, key: str, simulator: bool) -> None:
+    def check_width(self, x: torch.Tensor, robot: tuple[int, ...], key: str, simulator: bool) -> None:
         """A robot's state or action has the entries of the trained robot."""
         names = self.robot_map(robot, simulator).names(key)
         if x.shape[-1] != len(names):
@@ -365,8 +366,8 @@ class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
             def convert(x, key):
                 return self._from_universal(x, ids, key, live)
         else:
-            robot = self.robot_index(hand)
-            ids = torch.tensor(self.robots[robot], device=state.device).expand(len(state), -1)
+            robot = self.robot_slots(hand)
+            ids = torch.tensor(robot, device=state.device).expand(len(state), -1)
 
             def convert(x, key):
                 return self._from_robot(x, robot, key, simulator, live)
@@ -379,27 +380,30 @@ class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
         new[TransitionKey.OBSERVATION] = obs
         return new
 
-    def robot_index(self, hand: str | None) -> int:
-        """The robot of frames from the simulator of `hand` (the one-handed robot of that hand), or (None)
-        of the robot the pipeline drives."""
+    def robot_slots(self, hand: str | None) -> tuple[int, ...]:
+        """The embodiment of each slot of the robot of frames from the simulator of `hand` (`inspire`, or
+        `inspire+xhand` for two arms), or (None) of the robot the pipeline drives."""
         name = hand or self.hand
-        names = [self.robot_name(r) for r in range(len(self.robots))]
+        names = [self.robot_name(robot) for robot in self.robots]
         if name is None:
             if len(self.robots) == 1:
-                return 0
+                return tuple(self.robots[0])
             raise ValueError(
                 f"this policy drives several robots ({', '.join(names)}) and the frames do not "
                 "say which: add observation.embodiment or observation.hand to them, or give the pipeline its "
                 "robot: preprocessor_overrides={'opfa_encode_joints': {'hand': NAME}}"
             )
-        if name not in names:
+        hands, slots = name.split("+"), {len(robot) for robot in self.robots} - {1}
+        if name not in names and (len(hands) not in slots or not set(hands) <= set(self.embodiments)):
             raise ValueError(
-                f"this policy drives {', '.join(names)}; it cannot drive hand '{name}' (a policy "
-                "acts for the robots it was trained on)"
+                f"this policy drives {', '.join(names)}; it cannot drive hand '{name}' (a policy acts for "
+                "the robots it was trained on, and in the simulator for other pairs of their hands)"
             )
-        return names.index(name)
+        return tuple(self.embodiments.index(h) for h in hands)
 
-    def _from_robot(self, x: torch.Tensor, robot: int, key: str, simulator: bool, live: bool) -> torch.Tensor:
+    def _from_robot(
+        self, x: torch.Tensor, robot: tuple[int, ...], key: str, simulator: bool, live: bool
+    ) -> torch.Tensor:
         """A robot's state or action -> the policy space (body entries, then each hand slot's part). A live
         robot's joints must be near its hands' limits: a reading in other units would be encoded into a
         state the policy never saw, without a word (NaN is the state guard's, which names the entry)."""
@@ -407,7 +411,7 @@ class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
         joint_map = self.robot_map(robot, simulator)
         body, qs = joint_map.split(x, key)
         parts = [body]
-        for index, q, slot in zip(self.robots[robot], qs, joint_map.slots, strict=True):
+        for index, q, slot in zip(robot, qs, joint_map.slots, strict=True):
             if live and q.isfinite().all():
                 source = f"{OBS_STATE} of the robot" + ("" if simulator else f" (through {joint_map.source})")
                 source += f", its {slot.side} hand" if slot.side else ""
@@ -529,10 +533,7 @@ class OpfaDecodeJointsStep(_HandSpace, AbsoluteActionsProcessorStep):
         frames = paired_frames(self, len(action), hands.embodiments)
         robot = hands.robot_of(frames.ids)
         wrist, *parts = action.split([hands.body_dim(ACTION), *hands.slot_widths], dim=-1)
-        qs = [
-            hands.space.to_joints(hands, index, part)
-            for index, part in zip(hands.robots[robot], parts, strict=True)
-        ]
+        qs = [hands.space.to_joints(hands, index, part) for index, part in zip(robot, parts, strict=True)]
         new[TransitionKey.ACTION] = hands.robot_map(robot, frames.simulator).join(wrist, qs)
         return new
 

@@ -1,0 +1,142 @@
+"""Two hands per frame, measured on `lift_tray` (a hinged tray one hand cannot lift level) in `mid_center`.
+
+- (a) Inspire on the left, XHand on the right: one `galr` policy on their scripted demos, evaluated with
+  `lerobot-eval` in the two-armed env.
+- (b) one policy co-trained on demos of (Inspire, Inspire) and (XHand, XHand), evaluated on each pair it saw
+  and on the mixed pair (Inspire, XHand) it never saw; `galr` (OPFA) beside `per_embodiment` (naive
+  co-training), the same demos and protocol.
+
+    MUJOCO_GL=egl .venv/bin/python benchmarks/bench_bimanual.py [--demos 20] [--epochs 50] [--episodes 50]
+        [--work outputs/bimanual] [--runs a,b]
+
+Every step goes through the experiment runner (`lerobot-opfa train`, then `lerobot-eval`), whose steps are
+idempotent: an interrupted benchmark resumes where it stopped. benchmarks/results/bimanual.json (a list
+`runs`, each `{hands, task, action_space, trained_on, deploy, successes, episodes}`) and bimanual.png are
+rewritten after every evaluation.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from pathlib import Path
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import matplotlib  # noqa: E402
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+from lerobot_opfa.envs.bimanual import LiftTray  # noqa: E402
+from lerobot_opfa.experiments.jobs import (  # noqa: E402
+    CONDITIONS,
+    Demos,
+    Evaluation,
+    Training,
+    Workspace,
+    write_json,
+)
+from lerobot_opfa.experiments.scales import SCALES, Scale  # noqa: E402
+
+RESULTS = Path(__file__).parent / "results"
+REGION = "mid_center"
+TASK = LiftTray.name
+
+
+def scale(demos: int, epochs: int, episodes: int) -> Scale:
+    """The `small` scale's policy, trained for exactly `epochs` passes over the demos."""
+    small = SCALES["small"]
+    return Scale(
+        name=f"bimanual-{demos}x{epochs}",
+        demos=demos,
+        fewshot_counts=(),
+        epochs=epochs,
+        min_steps=1,
+        max_steps=None,
+        batch_size=small.batch_size,
+        eval_episodes=episodes,
+        eval_batch_size=small.eval_batch_size,
+        n_points=small.n_points,
+        policy_args=small.policy_args,
+    )
+
+
+def cells(demos: int, runs: list[str]) -> list[tuple[Training, str]]:
+    """(training, the pair it is evaluated on) of each run asked for."""
+
+    def pair(hands: str) -> Demos:
+        return Demos(TASK, hands, (REGION,), demos)
+
+    out = []
+    if "a" in runs:
+        out.append((Training("opfa", (pair("inspire+xhand"),)), "inspire+xhand"))
+    if "b" in runs:
+        for condition in ("opfa", "naive_cotrain"):
+            training = Training(condition, (pair("inspire+inspire"), pair("xhand+xhand")))
+            out += [(training, hands) for hands in ("inspire+inspire", "xhand+xhand", "inspire+xhand")]
+    return out
+
+
+def record(out: Path, row: dict) -> list[dict]:
+    """Every run in `out` with `row` in place of the same cell's (the file is read again just before)."""
+    runs = json.loads(out.read_text())["runs"] if out.exists() else []
+    key = ("hands", "action_space", "trained_on", "deploy")
+    runs = [r for r in runs if any(r[k] != row[k] for k in key)] + [row]
+    write_json(out, {"runs": runs})
+    return runs
+
+
+def plot(runs: list[dict], path: Path) -> None:
+    """One bar per run: its success on the pair it was evaluated on, grouped by what it trained on."""
+    fig, ax = plt.subplots(figsize=(9, 4.2))
+    labels = []
+    for i, run in enumerate(runs):
+        trained = " & ".join("+".join(p) for p in run["trained_on"])
+        seen = run["hands"] in run["trained_on"]
+        rate = 100 * run["successes"] / run["episodes"]
+        ax.bar(i, rate, color="tab:blue" if run["action_space"] == "galr" else "tab:orange",
+               hatch=None if seen else "//")  # fmt: skip
+        ax.text(i, rate + 1, f"{run['successes']}/{run['episodes']}", ha="center", fontsize=8)
+        labels.append(f"{'+'.join(run['hands'])}\n{run['action_space']}\ntrained: {trained}")
+    ax.set(xticks=range(len(runs)), ylabel="success (%)", ylim=(0, 110),
+           title=f"{TASK}, {REGION}: hatched = a pair of hands the policy never saw")  # fmt: skip
+    ax.set_xticklabels(labels, fontsize=7)
+    ax.axhline(80, color="grey", lw=0.8, ls=":")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--demos", type=int, default=20)
+    parser.add_argument("--epochs", type=int, default=50)
+    parser.add_argument("--episodes", type=int, default=50)
+    parser.add_argument("--work", type=Path, default=Path("outputs/bimanual"))
+    parser.add_argument("--galr", default="default")
+    parser.add_argument("--runs", default="a,b")
+    parser.add_argument("--results", type=Path, default=RESULTS)
+    args = parser.parse_args()
+    workspace = Workspace(args.work, scale(args.demos, args.epochs, args.episodes), args.galr, threads=1)
+    out = args.results / "bimanual.json"
+    for training, hands in cells(args.demos, args.runs.split(",")):
+        result = workspace.evaluate(Evaluation(training, TASK, hands, (REGION,)))
+        row = {
+            "hands": hands.split("+"),
+            "task": TASK,
+            "action_space": CONDITIONS[training.condition],
+            "trained_on": [d.hand.split("+") for d in training.demos],
+            "deploy": "lerobot-eval",
+            "successes": sum(result["successes"]),
+            "episodes": len(result["successes"]),
+        }
+        print(
+            json.dumps(row), f"(commit {result['commit']}, training {result['training_commit']})", flush=True
+        )
+        plot(record(out, row), args.results / "bimanual.png")
+
+
+if __name__ == "__main__":
+    main()
