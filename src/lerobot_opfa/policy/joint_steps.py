@@ -11,7 +11,9 @@ once, by the encode step; the decode step uses its pair's.
 
 Which robot a frame comes from is said once, by the frame: `observation.embodiment` ids (a merged dataset),
 `observation.hand` (the simulator's frames, whose entries are its hand's body entries then joints in spec
-order: the identity map), or nothing (the one robot of a one-robot policy, or the pipeline's `hand`). Every
+order: the identity map; `inspire+xhand` for two arms, per side), or nothing (the one robot of a one-robot
+policy, or the pipeline's `hand`). A robot is named by the embodiment of each of its hand slots (one for a
+one-handed robot, two for a two-armed one), and its frames' ids are those, (B, slots). Every
 robot's frames go through the same code, a `JointMap`. A postprocessor only sees the action, so it reads
 the robot from its own preprocessor's last batch: the encode step is LeRobot's relative-action step and the
 postprocessor's steps its absolute-action steps, the one pairing LeRobot restores when it loads a pipeline
