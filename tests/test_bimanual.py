@@ -87,3 +87,44 @@ def test_two_hand_demos_train_one_policy_that_lerobot_eval_runs_in_the_two_armed
     run_lerobot_here("lerobot_eval", evaluate, monkeypatch)
     info = json.loads((tmp_path / "eval" / "eval_info.json").read_text())
     assert info["overall"]["n_episodes"] == 1
+
+
+def test_a_policy_of_two_pairs_of_hands_drives_the_mixed_pair_in_the_simulator_and_no_robot_of_it(tmp_path):
+    """Co-trained on (Inspire, Inspire) and (XHand, XHand), a policy takes the simulator's frames of
+    (Inspire, XHand), each slot decoded into its own hand; a robot of that pair has no trained joint map."""
+    import torch
+    from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
+    from lerobot.utils.constants import OBS_STATE
+    from test_policy import make_policy, save_galr
+
+    from lerobot_opfa import cli
+    from lerobot_opfa.features import OBS_HAND, OBS_POINTCLOUD
+    from lerobot_opfa.policy.joint_steps import OpfaEncodeJointsStep
+
+    save_galr(tmp_path / "galr", ["inspire", "xhand"])
+    for pair in ("inspire+inspire", "xhand+xhand"):
+        record = ["sim", "demos", "--task", "lift_tray", "--hand", pair, "--episodes", "1", "--regions",
+                  "mid_center", "--output-dir", str(tmp_path / pair), "--n-points", "32",
+                  "--pointcloud-source", "geometry"]  # fmt: skip
+        assert cli.main(record) == 0
+    merge = ["dataset", "merge", "--inputs", str(tmp_path / "inspire+inspire"), str(tmp_path / "xhand+xhand"),
+             "--output", str(tmp_path / "merged"), "--galr", str(tmp_path / "galr")]  # fmt: skip
+    assert cli.main(merge) == 0
+    assert (
+        LeRobotDatasetMetadata("local/merged", root=tmp_path / "merged").features[OBS_STATE]["shape"][0] > 12
+    )
+    policy, pre, post, _ = make_policy(tmp_path, "merged")
+    env = OpfaBimanualEnv(
+        hands="inspire+xhand", obs_type="pointcloud", pointcloud_source="geometry", n_points=32
+    )
+    obs, _ = env.reset(seed=0)
+    observation = {OBS_STATE: torch.tensor(obs["agent_pos"]).float(), OBS_HAND: env.hand_name,
+                   OBS_POINTCLOUD: torch.tensor(obs["pointcloud"]).float()}  # fmt: skip
+    with torch.no_grad():
+        action = post(policy.select_action(pre(observation)))
+    assert action.shape == (1, len(env.action_names)), "the mixed pair's entries: 12 wrist, 6 + 12 joints"
+    assert np.all(np.isfinite(action.numpy()))
+    env.close()
+    encoder = next(step for step in pre.steps if isinstance(step, OpfaEncodeJointsStep))
+    with pytest.raises(ValueError, match="it cannot drive inspire\\+xhand"):
+        encoder.robot_map((0, 1), simulator=False)
