@@ -184,3 +184,46 @@ def test_an_episode_shorter_than_the_tasks_step_budget_is_reported_and_late_succ
     robot.disconnect()
     log = [json.loads(line) for line in robot.episodes_log.open()]
     assert [o["success"] for o in log] == [False, False] and log[1]["steps"] == budget + 1
+
+
+def test_the_two_armed_rig_records_with_lerobot_record_trains_without_a_map_and_deploys_with_lerobot_rollout(
+    tmp_path, monkeypatch
+):
+    """`--robot.hand=inspire+xhand --robot.task=lift_tray`: LeRobot's recorder writes both arms' entries as
+    its two-armed robots name them (`left_wrist_x.pos`, ..., `right_<joint>.pos`) and `robot_type`
+    `inspire+xhand`, which is all training needs to read a latent per hand; `lerobot-rollout` drives it."""
+    flags = ["--robot.type=opfa_sim", "--robot.hand=inspire+xhand", "--robot.task=lift_tray",
+             "--robot.depth_cameras=front"]  # fmt: skip
+    done = lerobot(
+        "lerobot_record", *flags, f"--robot.calibration_dir={tmp_path / 'calibration'}",
+        "--robot.episode_time_s=1", "--teleop.type=opfa_expert", "--dataset.repo_id=local/two",
+        f"--dataset.root={tmp_path / 'two'}", "--dataset.num_episodes=2", "--dataset.episode_time_s=1",
+        "--dataset.reset_time_s=0", "--dataset.fps=20", "--dataset.single_task=lift the tray",
+        "--dataset.push_to_hub=false", "--display_data=false", "--play_sounds=false",
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-3000:]
+    dataset = LeRobotDataset("local/two", root=tmp_path / "two")
+    names = dataset.meta.features["action"]["names"]
+    assert dataset.meta.robot_type == "inspire+xhand" and names[0] == "left_wrist_x.pos"
+    assert names[-1] == "right_little_pip_flex.pos"
+    policy = {"type": "opfa", "device": "cpu", "push_to_hub": "false", "horizon": 8, "down_dims": "[16,32]",
+              "n_action_steps": 4, "pointcloud_widths": "[8,16]", "pointcloud_feature_dim": 8,
+              "cloud_points": 64, "cameras": tmp_path / "calibration" / "opfa_sim_cameras.yaml"}  # fmt: skip
+    run_lerobot_here("lerobot_train", [
+        *(f"--policy.{k}={v}" for k, v in policy.items()), "--dataset.repo_id=local/two",
+        f"--dataset.root={tmp_path / 'two'}", "--steps=2", "--batch_size=2", "--num_workers=0",
+        "--save_freq=2", f"--output_dir={tmp_path / 'train'}", "--wandb.enable=false",
+    ], monkeypatch)  # fmt: skip
+    checkpoint = tmp_path / "train" / "checkpoints" / "last" / "pretrained_model"
+    config = json.loads((checkpoint / "config.json").read_text())
+    assert config["robots"] == [[0, 1]] and config["embodiments"] == ["inspire", "xhand"]
+    deploy = tmp_path / "deploy"
+    done = lerobot(
+        "lerobot_rollout", *flags, f"--robot.calibration_dir={deploy}", "--robot.auto_reset=true",
+        f"--policy.path={checkpoint}", "--fps=20", "--play_sounds=false",
+        "--return_to_initial_position=false", "--strategy.type=base", "--duration=2",
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-3000:]
+    log = [json.loads(line) for line in (deploy / "opfa_sim_episodes.jsonl").open()]
+    assert log and all(o["hand"] == "inspire+xhand" and o["task"] == "lift_tray" for o in log)
+    assert sum(o["steps"] for o in log) >= 10, log  # the policy drove both arms

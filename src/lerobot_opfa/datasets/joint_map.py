@@ -70,9 +70,20 @@ def joint_of(entry: str) -> str:
     return entry.removesuffix(POSITION_SUFFIX)
 
 
+HANDS_SEPARATOR = "+"
+"""A two-armed robot named by its hands, left first: `inspire+xhand` (its `robot_type` as the simulated rig
+records it, and how a policy's pipeline names it)."""
+
+
 def sided(side: str, name: str) -> str:
     """An entry of one side of a two-armed robot, as LeRobot's bimanual robots name them: `left_<name>`."""
     return f"{side}_{name}"
+
+
+def arm_entries(arms: dict[str, HandSpec], body: list[str]) -> list[str]:
+    """A two-armed robot's entries as the simulator lays them out: per side, its `body` entries, then its
+    hand's joints in spec order, each `<side>_<name>`."""
+    return [sided(side, name) for side, spec in arms.items() for name in (*body, *spec.actuated_joints)]
 
 
 class JointMapError(ValueError):
@@ -252,17 +263,24 @@ class JointMap:
         return cls((slot,), source=f"hand '{spec.name}'").bind(state_names, action_names)
 
     @classmethod
-    def of_arms(cls, arms: dict[str, HandSpec], body: list[str]) -> JointMap:
-        """The map of a two-armed robot whose entries are, per side, its `body` entries, then its hand's
-        joints in spec order and units, each named `<side>_<name>` (the two-armed simulator's)."""
-        names = [sided(side, n) for side, spec in arms.items() for n in (*body, *spec.actuated_joints)]
+    def named_after_arms(
+        cls, arms: dict[str, HandSpec], state_names: list[str], action_names: list[str]
+    ) -> JointMap:
+        """The map of a two-armed robot whose hand entries are named `<side>_<joint>` (or, as LeRobot's
+        robots record them, `<side>_<joint>.pos`), in the specs' units: the two-armed simulator's."""
+
+        def entry(side: str, joint: str) -> str:
+            name = sided(side, joint)
+            return name if name in action_names else f"{name}{POSITION_SUFFIX}"
+
         slots = tuple(
             HandSlot(
-                hand_ref(spec), {sided(side, j): MappedJoint(j) for j in spec.actuated_joints}, side=side
+                hand_ref(spec), {entry(side, j): MappedJoint(j) for j in spec.actuated_joints}, side=side
             )
             for side, spec in arms.items()
         )
-        return cls(slots, source=f"hands {'+'.join(spec.name for spec in arms.values())}").bind(names, names)
+        source = f"hands {HANDS_SEPARATOR.join(spec.name for spec in arms.values())}"
+        return cls(slots, source=source).bind(state_names, action_names)
 
     @property
     def hands(self) -> list[str]:

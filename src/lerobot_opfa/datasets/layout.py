@@ -20,7 +20,7 @@ from pathlib import Path
 from lerobot.utils.constants import ACTION, OBS_STATE
 
 from lerobot_opfa.datasets.io import OPFA_META_FILE, embedded_record, read_json
-from lerobot_opfa.datasets.joint_map import JointMap, joint_of
+from lerobot_opfa.datasets.joint_map import HANDS_SEPARATOR, SIDES, JointMap, JointMapError, joint_of
 from lerobot_opfa.datasets.map_hint import closest_hands, hand_sides, map_to_write, recorded_ranges
 from lerobot_opfa.features import OBS_EMBODIMENT
 from lerobot_opfa.hands.registry import builtin_hands, hand_ref, load_spec
@@ -234,6 +234,8 @@ def read_layout(
     if joint_map is None and "joint_map" in record:  # a dataset that says which entries are which hand
         joint_map = JointMap.from_dict(record["joint_map"], f"the joint map recorded in {OPFA_META_FILE}")
     if joint_map is None:
+        joint_map = _two_armed_map(robot_type, names, actions, candidates)
+    if joint_map is None:
         spec = identify_hand(names, robot_type, candidates, root)
         joint_map = JointMap.named_after(spec, names, actions)
     else:
@@ -256,11 +258,30 @@ def read_layout(
     )
 
 
+def _two_armed_map(
+    robot_type: str | None, names: list[str], actions: list[str], candidates: list[str]
+) -> JointMap | None:
+    """The map of a two-armed robot named by its hands (`inspire+xhand`, as the simulated rig records it)
+    whose entries name each side's joints (`left_<joint>.pos`); None for any other dataset."""
+    hands = (robot_type or "").split(HANDS_SEPARATOR)
+    specs = {}
+    for spec in map(load_spec, candidates):
+        specs.setdefault(spec.name, spec)
+    if len(hands) != len(SIDES) or not set(hands) <= set(specs):
+        return None
+    try:
+        return JointMap.named_after_arms(
+            dict(zip(SIDES, (specs[h] for h in hands), strict=True)), names, actions
+        )
+    except JointMapError:
+        return None
+
+
 def _recorded_map(record: dict, specs: list[HandSpec], wrist: list[str]) -> JointMap:
     """How a robot of a merged dataset (its slots' hands `specs`) laid out its vectors: the map its input was
     merged with, or (a dataset of this package's simulator, one hand) the body entries, then the joints
     under their own names."""
-    robot = "+".join(spec.name for spec in specs)
+    robot = HANDS_SEPARATOR.join(spec.name for spec in specs)
     recorded = record.get("joint_maps", {}).get(robot)
     if recorded is not None:
         return JointMap.from_dict(recorded, f"the joint map of '{robot}' recorded in {OPFA_META_FILE}")

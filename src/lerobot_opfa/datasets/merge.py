@@ -24,7 +24,7 @@ from lerobot.utils.constants import ACTION, OBS_STATE
 from tqdm import tqdm
 
 from lerobot_opfa.datasets.io import check_dataset_folder, check_outside_inputs, new_dataset, read_columns
-from lerobot_opfa.datasets.joint_map import JointMap
+from lerobot_opfa.datasets.joint_map import HANDS_SEPARATOR, JointMap
 from lerobot_opfa.datasets.layout import (
     LATENT_ROBOT_TYPE,
     OPFA_META_FILE,
@@ -274,7 +274,7 @@ def _deployed_maps(opened: list[_Input]) -> dict[str, dict]:
     dataset saves, to speak that robot's entries when deployed."""
     maps = {}
     for source in opened:
-        joint_map, robot = source.layout.joint_maps[0], "+".join(_slot_hands(source))
+        joint_map, robot = source.layout.joint_maps[0], HANDS_SEPARATOR.join(_slot_hands(source))
         first = maps.setdefault(robot, joint_map.to_dict())
         if first != joint_map.to_dict():
             logger.warning(

@@ -15,7 +15,7 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
-from lerobot_opfa.datasets.joint_map import JointMap
+from lerobot_opfa.datasets.joint_map import HANDS_SEPARATOR, SIDES, JointMap, arm_entries
 from lerobot_opfa.envs.env import POINTCLOUD_SOURCES, OpfaSimEnv, check_choice, parse_cameras
 from lerobot_opfa.envs.experts import ScriptedExpert
 from lerobot_opfa.envs.observation import DepthPointCloud, GeometryPointCloud
@@ -31,17 +31,23 @@ from lerobot_opfa.envs.scene import (
     index_arm,
     mount_hand,
 )
-from lerobot_opfa.envs.tasks import ENV_STATE_DIM, RISEN, LiftBox, Placement, Task, _free_body_state, _geom
+from lerobot_opfa.envs.tasks import (
+    ENV_STATE_DIM,
+    RISEN,
+    TASKS,
+    LiftBox,
+    Placement,
+    Task,
+    _free_body_state,
+    _geom,
+)
 from lerobot_opfa.hands.model import HandModel
 from lerobot_opfa.hands.registry import load_hand
 
-SIDES = ("left", "right")
 HOME_Y = 0.16
 """m: each wrist's home this far to its side of the table's centre line."""
 SETTLE_STEPS = 20
 TWO_HAND_OBS_TYPES = ("pointcloud", "state", "pointcloud_state")
-BIMANUAL_HAND_SEPARATOR = "+"
-"""Hands of a two-armed robot in one name, left first: `inspire+xhand`."""
 
 
 def arm_homes() -> dict[str, np.ndarray]:
@@ -159,11 +165,24 @@ class LiftTray(Task):
 
 
 BIMANUAL_TASKS: dict[str, type[Task]] = {LiftTray.name: LiftTray}
+ALL_TASKS: dict[str, type[Task]] = {**TASKS, **BIMANUAL_TASKS}
+"""Every task by name: one hand's, then two hands'."""
+
+
+def check_any_task(name: str | None) -> str:
+    if name not in ALL_TASKS:
+        raise ValueError(f"unknown task '{name}'; valid tasks: {', '.join(ALL_TASKS)}")
+    return name
+
+
+def task_hands(task: str, hand: str) -> list[str]:
+    """The hands a task's `hand` names: one, or for a two-hand task one per side (`inspire+xhand`)."""
+    return parse_hands(hand) if task in BIMANUAL_TASKS else [hand]
 
 
 def parse_hands(hands: str | list[str] | tuple[str, ...]) -> list[str]:
     """'inspire+xhand', 'inspire,xhand' or a pair -> [left hand, right hand]."""
-    names = hands.replace(BIMANUAL_HAND_SEPARATOR, ",").split(",") if isinstance(hands, str) else list(hands)
+    names = hands.replace(HANDS_SEPARATOR, ",").split(",") if isinstance(hands, str) else list(hands)
     names = [n.strip() for n in names if n.strip()]
     if len(names) != 2:
         raise ValueError(
@@ -237,7 +256,8 @@ class OpfaBimanualEnv(gym.Env):
         """How its state and action hold the wrists and the hands: `left_wrist_x`, ..., `left_<joint>`,
         ..., then the right arm's."""
         specs = {side: hand.spec for side, hand in self.hand_models.items()}
-        return JointMap.of_arms(specs, list(WRIST_JOINTS))
+        names = arm_entries(specs, list(WRIST_JOINTS))
+        return JointMap.named_after_arms(specs, names, names)
 
     @property
     def state_names(self) -> list[str]:
@@ -250,7 +270,7 @@ class OpfaBimanualEnv(gym.Env):
     @property
     def hand_name(self) -> str:
         """The robot by its hands, left first (`inspire+xhand`): what a policy's pipeline names it by."""
-        return BIMANUAL_HAND_SEPARATOR.join(hand.name for hand in self.hand_models.values())
+        return HANDS_SEPARATOR.join(hand.name for hand in self.hand_models.values())
 
     def command(self, targets: np.ndarray) -> np.ndarray:
         """The action that takes the wrists and hands to `targets` (what the scripted expert gives)."""

@@ -12,17 +12,19 @@ from lerobot.envs.configs import EnvConfig
 from lerobot.processor import ObservationProcessorStep, PolicyProcessorPipeline
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGES, OBS_STATE
 
+from lerobot_opfa.datasets.joint_map import HANDS_SEPARATOR
 from lerobot_opfa.envs.bimanual import (
-    BIMANUAL_HAND_SEPARATOR,
+    ALL_TASKS,
     BIMANUAL_TASKS,
     TWO_HAND_OBS_TYPES,
-    parse_hands,
+    check_any_task,
+    task_hands,
 )
 from lerobot_opfa.envs.control import EE_ACTION_NAMES, EE_STATE_NAMES, check_control
 from lerobot_opfa.envs.env import OBS_TYPES, POINTCLOUD_SOURCES, check_choice, parse_cameras
 from lerobot_opfa.envs.regions import parse_regions
 from lerobot_opfa.envs.scene import WRIST_JOINTS
-from lerobot_opfa.envs.tasks import ENV_STATE_DIM, TASKS
+from lerobot_opfa.envs.tasks import ENV_STATE_DIM
 from lerobot_opfa.features import OBS_HAND, OBS_POINTCLOUD
 from lerobot_opfa.flags import flag
 from lerobot_opfa.hands.registry import load_spec
@@ -31,9 +33,6 @@ from lerobot_opfa.hands.registry import load_spec
 def gym_id(task: str) -> str:
     return f"opfa/{task}-v0"
 
-
-ALL_TASKS = {**TASKS, **BIMANUAL_TASKS}
-"""Every task by name: one hand's, then two hands'."""
 
 for _task in ALL_TASKS.values():
     if gym_id(_task.name) not in gym.registry:
@@ -44,12 +43,6 @@ for _task in ALL_TASKS.values():
             max_episode_steps=_task.episode_steps,
             kwargs={"task": _task.name},
         )
-
-
-def check_any_task(name: str | None) -> str:
-    if name not in ALL_TASKS:
-        raise ValueError(f"unknown task '{name}'; valid tasks: {', '.join(ALL_TASKS)}")
-    return name
 
 
 @EnvConfig.register_subclass("opfa")
@@ -98,7 +91,7 @@ class OpfaEnvConfig(EnvConfig):
             parse_cameras(self.rgb_cameras)
         if self.two_hands:
             with flag("env.hand"):
-                specs = [load_spec(hand) for hand in parse_hands(self.hand)]
+                specs = [load_spec(hand) for hand in task_hands(self.task, self.hand)]
             with flag("env.obs_type"):
                 check_choice("obs_type of a two-hand task", self.obs_type, TWO_HAND_OBS_TYPES)
             with flag("env.control"):
@@ -147,8 +140,7 @@ class OpfaEnvConfig(EnvConfig):
     @property
     def hand_name(self) -> str:
         """The robot the frames come from, by its hands' names (`inspire`; `inspire+xhand`, left first)."""
-        hands = parse_hands(self.hand) if self.two_hands else [self.hand]
-        return BIMANUAL_HAND_SEPARATOR.join(load_spec(hand).name for hand in hands)
+        return HANDS_SEPARATOR.join(load_spec(hand).name for hand in task_hands(self.task, self.hand))
 
     @property
     def package_name(self) -> str:

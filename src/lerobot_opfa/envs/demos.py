@@ -16,6 +16,7 @@ from tqdm import tqdm
 from tqdm.contrib.logging import logging_redirect_tqdm
 
 from lerobot_opfa.datasets.io import new_dataset
+from lerobot_opfa.datasets.joint_map import HANDS_SEPARATOR
 from lerobot_opfa.datasets.layout import OPFA_META_FILE, hand_entry
 from lerobot_opfa.envs.bimanual import OpfaBimanualEnv, scripted_expert, sim_env
 from lerobot_opfa.envs.env import OpfaSimEnv
@@ -137,7 +138,7 @@ def failure_reason(env: OpfaSimEnv, env_states: np.ndarray) -> str:
 
 
 def _repo_id(env: OpfaSimEnv) -> str:
-    return f"local/opfa_{env.task.name}_{env.hand_name.replace('+', '_')}"
+    return f"local/opfa_{env.task.name}_{env.hand_name.replace(HANDS_SEPARATOR, '_')}"
 
 
 def _record(env: OpfaSimEnv, episodes: int, dataset, region_names: list[str], seed: int) -> None:
@@ -193,4 +194,4 @@ def _record(env: OpfaSimEnv, episodes: int, dataset, region_names: list[str], se
 
 
 def _hand_path(env: OpfaSimEnv | OpfaBimanualEnv) -> str:
-    return "+".join(str(hand.spec.path) for hand in env.hands_by_side.values())
+    return HANDS_SEPARATOR.join(str(hand.spec.path) for hand in env.hands_by_side.values())

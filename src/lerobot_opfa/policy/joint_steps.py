@@ -36,7 +36,7 @@ from lerobot.processor.relative_action_processor import (
 )
 from lerobot.utils.constants import ACTION, OBS_STATE
 
-from lerobot_opfa.datasets.joint_map import JointMap
+from lerobot_opfa.datasets.joint_map import HANDS_SEPARATOR, JointMap, arm_entries
 from lerobot_opfa.features import OBS_EMBODIMENT, OBS_HAND, OBS_POINTCLOUD, frame_embodiments
 from lerobot_opfa.galr.frozen import encode_joints, encode_universal, relocate_hand
 from lerobot_opfa.galr.model import Galr
@@ -155,7 +155,7 @@ class _HandSpace:
 
     def robot_name(self, robot: tuple[int, ...] | list[int]) -> str:
         """A robot by its slots' hands: `inspire`, or `inspire+xhand` for two (left first)."""
-        return "+".join(self.embodiments[e] for e in robot)
+        return HANDS_SEPARATOR.join(self.embodiments[e] for e in robot)
 
     def _spec_order_map(self, ref: str, joint_names: list[str] | None = None) -> JointMap:
         spec = load_spec(ref)
@@ -170,8 +170,8 @@ class _HandSpace:
     def robot_map(self, robot: tuple[int, ...], simulator: bool) -> JointMap:
         """The joint map of the robot whose slots hold embodiments `robot`, for its frames, or for the
         simulator's of those hands: the body entries, then the joints in spec order (the identity); with
-        two hands, that per side (`JointMap.of_arms`). The simulator takes any pair of the policy's hands,
-        one it was not trained on too (each slot's hand is decoded on its own)."""
+        two hands, that per side (`joint_map.arm_entries`). The simulator takes any pair of the policy's
+        hands, one it was not trained on too (each slot's hand is decoded on its own)."""
         if not simulator:
             if robot not in self.maps:
                 raise ValueError(
@@ -186,8 +186,8 @@ class _HandSpace:
                 trained = next(m for m in self.maps.values() if len(m.slots) == len(robot))
                 sides = [slot.side for slot in trained.slots]
                 arms = {side: load_spec(self.hand_refs[i]) for side, i in zip(sides, robot, strict=True)}
-                body = [f"body_{i}" for i in range(self.wrist_dim // len(robot))]
-                self._simulator_maps[robot] = JointMap.of_arms(arms, body)
+                names = arm_entries(arms, [f"body_{i}" for i in range(self.wrist_dim // len(robot))])
+                self._simulator_maps[robot] = JointMap.named_after_arms(arms, names, names)
         return self._simulator_maps[robot]
 
     def robot_of(self, ids: torch.Tensor) -> tuple[int, ...]:
@@ -395,7 +395,7 @@ class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
                 "say which: add observation.embodiment or observation.hand to them, or give the pipeline its "
                 "robot: preprocessor_overrides={'opfa_encode_joints': {'hand': NAME}}"
             )
-        hands, slots = name.split("+"), {len(robot) for robot in self.robots} - {1}
+        hands, slots = name.split(HANDS_SEPARATOR), {len(robot) for robot in self.robots} - {1}
         if name not in names and (len(hands) not in slots or not set(hands) <= set(self.embodiments)):
             raise ValueError(
                 f"this policy drives {', '.join(names)}; it cannot drive hand '{name}' (a policy acts for "

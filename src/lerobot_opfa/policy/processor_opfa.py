@@ -32,7 +32,7 @@ from lerobot.utils.constants import ACTION, OBS_STATE
 from lerobot_opfa.datasets import io as dataset_io
 from lerobot_opfa.datasets.clouds import recorded_rig
 from lerobot_opfa.datasets.io import read_columns
-from lerobot_opfa.datasets.joint_map import JointMap
+from lerobot_opfa.datasets.joint_map import HANDS_SEPARATOR, JointMap
 from lerobot_opfa.datasets.layout import DatasetLayout, opfa_record, read_layout
 from lerobot_opfa.datasets.statistics import (
     WRIST_NOISE,
@@ -305,7 +305,7 @@ def check_trainable_frames(config: OpfaConfig, layout: DatasetLayout, root: Path
     )
     drop = config.drop_n_last_frames
     for slot_ids in layout.robots:
-        hand = "+".join(layout.embodiments[e] for e in slot_ids)
+        hand = HANDS_SEPARATOR.join(layout.embodiments[e] for e in slot_ids)
         mine = lengths if ids is None else lengths[(ids == slot_ids).all(axis=1)]
         if not len(mine):
             raise ValueError(

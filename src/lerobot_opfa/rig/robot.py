@@ -33,10 +33,10 @@ import yaml
 from lerobot.robots.config import RobotConfig
 from lerobot.robots.robot import Robot
 
-from lerobot_opfa.envs.env import OpfaSimEnv, parse_cameras
+from lerobot_opfa.envs.bimanual import check_any_task, sim_env, task_hands
+from lerobot_opfa.envs.env import parse_cameras
 from lerobot_opfa.envs.observation import ColourCameras, DepthPointCloud
 from lerobot_opfa.envs.regions import parse_regions
-from lerobot_opfa.envs.tasks import check_task
 from lerobot_opfa.flags import FlagError, flag
 from lerobot_opfa.hands.registry import load_spec
 from lerobot_opfa.pointclouds import DepthRig
@@ -56,7 +56,7 @@ episode's step starts that late, and saving an episode takes longer."""
 @dataclass(kw_only=True)
 class OpfaSimRobotConfig(RobotConfig):
     id: str | None = "opfa_sim"
-    hand: str = "umi"  # a built-in hand name or a spec.yaml path
+    hand: str = "umi"  # a built-in hand name or a spec.yaml path; a two-hand task's: left+right
     task: str = "lift"
     regions: str = "all"
     seed: int = 0
@@ -75,10 +75,11 @@ class OpfaSimRobotConfig(RobotConfig):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        with flag("robot.hand"):
-            load_spec(self.hand)
         with flag("robot.task"):
-            check_task(self.task)
+            check_any_task(self.task)
+        with flag("robot.hand"):
+            for hand in task_hands(self.task, self.hand):
+                load_spec(hand)
         with flag("robot.regions"):
             parse_regions(self.regions)
         with flag("robot.depth_cameras"):
@@ -97,10 +98,9 @@ class OpfaSimRobot(Robot):
     def __init__(self, config: OpfaSimRobotConfig):
         super().__init__(config)
         self.config = config
-        self.env = OpfaSimEnv(task=config.task, hand=config.hand, regions=config.regions, obs_type="state",
-                              fps=config.fps)  # fmt: skip
-        # what LeRobot records as the dataset's robot_type: the hand, which this package reads it as
-        self.name = self.robot_type = self.env.hand_model.name
+        self.env = sim_env(config.task, config.hand, config.regions, obs_type="state", fps=config.fps)
+        # what LeRobot records as the dataset's robot_type: the hand(s), which this package reads it as
+        self.name = self.robot_type = self.env.hand_name
         self.joint_names = list(self.env.state_names)
         self.depth_names = parse_cameras(config.depth_cameras)
         self.rgb_names = parse_cameras(config.rgb_cameras) if config.rgb_cameras else []
@@ -230,7 +230,7 @@ class OpfaSimRobot(Robot):
     def _finish(self, ended: str) -> None:
         """Logs the episode's outcome, then places the next episode's objects."""
         outcome = {"episode": self.episode, "seed": self.config.seed + self.episode,
-                   "region": self.env.region, "hand": self.env.hand_model.name, "task": self.env.task.name,
+                   "region": self.env.region, "hand": self.env.hand_name, "task": self.env.task.name,
                    "success": self.success, "steps": self.steps, "ended": ended}  # fmt: skip
         self.outcomes.append(outcome)
         budget = self.env.task.episode_steps
