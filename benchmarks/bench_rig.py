@@ -9,7 +9,10 @@ GaLR, one `galr` policy trained on the merge (`lerobot-opfa train`), and per han
 and of `lerobot-eval --env.type=opfa` (the env's own clouds), in the same region and seeds.
 
     MUJOCO_GL=egl .venv/bin/python benchmarks/bench_rig.py [--hands umi,inspire] [--task lift]
-        [--work outputs/rig]
+        [--work outputs/rig] [--name rig]
+
+A two-armed rig is one "hand" of two, left first: `--hands inspire+xhand --task lift_tray --name
+rig_two_hands`.
 
 Each stage's output and wall time are kept under `--work`: an interrupted run resumes at the stage it
 stopped in. Results: benchmarks/results/rig.json and rig.png.
@@ -44,9 +47,10 @@ RESULTS = Path(__file__).parent / "results"
 BIN = Path(sys.executable).parent
 REGION = "mid_center"
 FPS, RECORD_S, EVAL_SEED = 20, 6, 1000
-DEPLOY_S = 7
-"""A rollout episode's length: the task's 100 steps (the rig counts success within them, as `lerobot-eval`
-does) at any loop rate from 14.3 Hz; a 5 s episode left the policy 55-85 steps at the 15 Hz measured."""
+LOOP_HZ = 14.3
+"""The slowest loop rate a rollout episode's length covers the task's steps at (the rig counts success
+within them, as `lerobot-eval` does): 7 s for a 100-step task; a 5 s episode left the policy 55-85 steps
+at the 15 Hz measured."""
 ROLLOUT_ENV = {**os.environ, "OMP_NUM_THREADS": "1"}
 """One torch thread in the control loop: on 2 busy cores a loop step of the co-trained policy took 39 ms
 with one and 52 ms with two (the rendering and LeRobot's frame writers share the cores)."""
@@ -137,15 +141,21 @@ def record(stages: Stages, task: str, hand: str, demos: int, episode_s: float = 
     return kept if failed else recorded
 
 
+def deploy_seconds(task: str) -> int:
+    from lerobot_opfa.envs.bimanual import ALL_TASKS
+
+    return math.ceil(ALL_TASKS[task].episode_steps / LOOP_HZ)
+
+
 def evaluate(stages: Stages, task: str, hand: str, model: Path, episodes: int, n_points: int) -> dict:
-    work = stages.work
+    work, deploy_s = stages.work, deploy_seconds(task)
     deploy, out, pinned = work / f"deploy_{hand}", work / f"eval_{hand}", work / f"policy_{hand}"
     # the rig's frames reach the policy without their robot: a copy of the checkpoint names it
     pin = [str(BIN / "lerobot-opfa"), "policy", "for-robot", "--policy", str(model), "--hand", hand]
     stages.run(f"pin_{hand}", [pinned], [*pin, "--output", str(pinned)])
     rollout = [
         str(BIN / "lerobot-rollout"),
-        *rig_args(task, hand, deploy, DEPLOY_S, EVAL_SEED),
+        *rig_args(task, hand, deploy, deploy_s, EVAL_SEED),
         f"--policy.path={pinned}",
         "--strategy.type=episodic",
         "--strategy.reset_to_initial_position=false",
@@ -180,7 +190,7 @@ def evaluate(stages: Stages, task: str, hand: str, model: Path, episodes: int, n
         "rollout_episodes": len(outcomes),
         "eval_successes": round(overall["pc_success"] * overall["n_episodes"] / 100),
         "eval_episodes": overall["n_episodes"],
-        "loop_hz": round(steps / (len(outcomes) * DEPLOY_S), 2),
+        "loop_hz": round(steps / (len(outcomes) * deploy_s), 2),
         "target_hz": FPS,
     }
 
@@ -225,13 +235,15 @@ def main() -> None:
     parser.add_argument("--n-points", type=int, default=256)
     parser.add_argument("--galr", default="long")
     parser.add_argument("--work", type=Path, default=Path("outputs/rig"))
+    parser.add_argument("--record-s", type=float, default=RECORD_S, help="a recorded episode's length")
+    parser.add_argument("--name", default="rig", help="results file name: benchmarks/results/NAME.{json,png}")
     args = parser.parse_args()
     work = args.work.resolve()
     stages = Stages(work)
     hands = args.hands.split(",")
     clouds = []
     for hand in hands:
-        recorded = record(stages, args.task, hand, args.demos)
+        recorded = record(stages, args.task, hand, args.demos, args.record_s)
         cloud = work / "data" / f"{hand}_clouds"
         stages.run(
             f"clouds_{hand}",
@@ -308,15 +320,15 @@ def main() -> None:
         "demos_per_hand": args.demos,
         "merged_frames": frames,
         "train_steps": steps,
-        "rollout_episode_s": DEPLOY_S,
+        "rollout_episode_s": deploy_seconds(args.task),
         "n_points": args.n_points,
         "galr": args.galr,
         "stages": stages.done,
         "machine": f"{os.cpu_count()} cores, {platform.machine()}",
     }
     RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "rig.json").write_text(json.dumps(report, indent=2))
-    plot(results, args.task, RESULTS / "rig.png")
+    (RESULTS / f"{args.name}.json").write_text(json.dumps(report, indent=2))
+    plot(results, args.task, RESULTS / f"{args.name}.png")
     print(json.dumps(report, indent=2))
 
 
