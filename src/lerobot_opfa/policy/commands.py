@@ -39,7 +39,11 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         "for-robot", help="a copy of a checkpoint of several robots that drives one (for lerobot-rollout)"
     )
     pin.add_argument("--policy", type=Path, required=True, help="checkpoint folder (pretrained_model)")
-    pin.add_argument("--hand", required=True, help="the robot's hand, one the policy was trained on")
+    pin.add_argument(
+        "--hand",
+        required=True,
+        help="the robot's hand, one the policy was trained on (two arms: inspire+xhand)",
+    )
     pin.add_argument("--output", type=Path, required=True)
     pin.set_defaults(func=_pin)
 
