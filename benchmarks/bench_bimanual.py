@@ -1,13 +1,15 @@
 """Two hands per frame, measured on `lift_tray` (a hinged tray one hand cannot lift level) in `mid_center`.
 
-- (a) Inspire on the left, XHand on the right: one `galr` policy on their scripted demos, evaluated with
-  `lerobot-eval` in the two-armed env.
-- (b) one policy co-trained on demos of (Inspire, Inspire) and (XHand, XHand), evaluated on each pair it saw
-  and on the mixed pair (Inspire, XHand) it never saw; `galr` (OPFA) beside `per_embodiment` (naive
-  co-training), the same demos and protocol.
+- (a) Inspire on the left, XHand on the right, on the two-armed rig through LeRobot's tools: demos recorded
+  with `lerobot-record`, one `galr` policy, deployed with `lerobot-rollout` beside `lerobot-eval`. That is
+  `bench_rig.py --hands inspire+xhand --task lift_tray --record-s 10 --name rig_two_hands`; `--rig
+  rig_two_hands` folds its results in here.
+- (b) one policy co-trained on scripted demos of (Inspire, Inspire) and (XHand, XHand), evaluated with
+  `lerobot-eval` on each pair it saw and on the mixed pair (Inspire, XHand) it never saw; `galr` (OPFA)
+  beside `per_embodiment` (naive co-training), the same demos and protocol.
 
-    MUJOCO_GL=egl .venv/bin/python benchmarks/bench_bimanual.py [--demos 20] [--epochs 50] [--episodes 50]
-        [--work outputs/bimanual] [--runs a,b]
+    MUJOCO_GL=egl .venv/bin/python benchmarks/bench_bimanual.py [--demos 20] [--epochs 30] [--episodes 50]
+        [--work outputs/bimanual] [--rig rig_two_hands]
 
 Every step goes through the experiment runner (`lerobot-opfa train`, then `lerobot-eval`), whose steps are
 idempotent: an interrupted benchmark resumes where it stopped. benchmarks/results/bimanual.json (a list
@@ -63,20 +65,29 @@ def scale(demos: int, epochs: int, episodes: int) -> Scale:
     )
 
 
-def cells(demos: int, runs: list[str]) -> list[tuple[Training, str]]:
-    """(training, the pair it is evaluated on) of each run asked for."""
+def cells(demos: int) -> list[tuple[Training, str]]:
+    """(training, the pair it is evaluated on) of (b)."""
+    pairs = tuple(Demos(TASK, hands, (REGION,), demos) for hands in ("inspire+inspire", "xhand+xhand"))
+    return [
+        (Training(condition, pairs), hands)
+        for condition in ("opfa", "naive_cotrain")
+        for hands in ("inspire+inspire", "xhand+xhand", "inspire+xhand")
+    ]
 
-    def pair(hands: str) -> Demos:
-        return Demos(TASK, hands, (REGION,), demos)
 
-    out = []
-    if "a" in runs:
-        out.append((Training("opfa", (pair("inspire+xhand"),)), "inspire+xhand"))
-    if "b" in runs:
-        for condition in ("opfa", "naive_cotrain"):
-            training = Training(condition, (pair("inspire+inspire"), pair("xhand+xhand")))
-            out += [(training, hands) for hands in ("inspire+inspire", "xhand+xhand", "inspire+xhand")]
-    return out
+def rig_rows(results: Path, name: str) -> list[dict]:
+    """(a): the two-armed rig's results (`bench_rig.py --name NAME`), one row per deployment."""
+    report = json.loads((results / f"{name}.json").read_text())
+    rows = []
+    for result in report["hands"]:
+        hands = result["hand"].split("+")
+        for deploy, key in (("lerobot-rollout", "rollout"), ("lerobot-eval", "eval")):
+            rows.append({
+                "hands": hands, "task": report["task"], "action_space": "galr", "trained_on": [hands],
+                "deploy": deploy, "successes": result[f"{key}_successes"],
+                "episodes": result[f"{key}_episodes"],
+            })  # fmt: skip
+    return rows
 
 
 def record(out: Path, row: dict) -> list[dict]:
@@ -90,7 +101,7 @@ def record(out: Path, row: dict) -> list[dict]:
 
 def plot(runs: list[dict], path: Path) -> None:
     """One bar per run: its success on the pair it was evaluated on, grouped by what it trained on."""
-    fig, ax = plt.subplots(figsize=(9, 4.2))
+    fig, ax = plt.subplots(figsize=(11, 4.6))
     labels = []
     for i, run in enumerate(runs):
         trained = " & ".join("+".join(p) for p in run["trained_on"])
@@ -99,7 +110,7 @@ def plot(runs: list[dict], path: Path) -> None:
         ax.bar(i, rate, color="tab:blue" if run["action_space"] == "galr" else "tab:orange",
                hatch=None if seen else "//")  # fmt: skip
         ax.text(i, rate + 1, f"{run['successes']}/{run['episodes']}", ha="center", fontsize=8)
-        labels.append(f"{'+'.join(run['hands'])}\n{run['action_space']}\ntrained: {trained}")
+        labels.append(f"{'+'.join(run['hands'])}\n{run['action_space']}, {run['deploy']}\ntrained: {trained}")
     ax.set(xticks=range(len(runs)), ylabel="success (%)", ylim=(0, 110),
            title=f"{TASK}, {REGION}: hatched = a pair of hands the policy never saw")  # fmt: skip
     ax.set_xticklabels(labels, fontsize=7)
@@ -112,16 +123,18 @@ def plot(runs: list[dict], path: Path) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--demos", type=int, default=20)
-    parser.add_argument("--epochs", type=int, default=50)
+    parser.add_argument("--epochs", type=int, default=30)
     parser.add_argument("--episodes", type=int, default=50)
     parser.add_argument("--work", type=Path, default=Path("outputs/bimanual"))
     parser.add_argument("--galr", default="default")
-    parser.add_argument("--runs", default="a,b")
+    parser.add_argument("--rig", help="fold in the two-armed rig's results, benchmarks/results/RIG.json")
     parser.add_argument("--results", type=Path, default=RESULTS)
     args = parser.parse_args()
     workspace = Workspace(args.work, scale(args.demos, args.epochs, args.episodes), args.galr, threads=1)
     out = args.results / "bimanual.json"
-    for training, hands in cells(args.demos, args.runs.split(",")):
+    for row in rig_rows(args.results, args.rig) if args.rig else []:
+        plot(record(out, row), args.results / "bimanual.png")
+    for training, hands in cells(args.demos):
         result = workspace.evaluate(Evaluation(training, TASK, hands, (REGION,)))
         row = {
             "hands": hands.split("+"),
