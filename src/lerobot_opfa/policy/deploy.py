@@ -15,15 +15,19 @@ from pathlib import Path
 from lerobot.configs import PreTrainedConfig
 from lerobot.policies.factory import make_pre_post_processors
 from lerobot.processor import PolicyProcessorPipeline
+from lerobot.utils.import_utils import register_third_party_plugins
 
 from lerobot_opfa.datasets.io import atomic_directory
 from lerobot_opfa.policy.joint_steps import OpfaEncodeJointsStep
 
 
 def checkpoint_config(policy_dir: Path) -> PreTrainedConfig:
-    """The config of a checkpoint folder (its `pretrained_model`), or a one-line error."""
+    """The config of a checkpoint folder (its `pretrained_model`), or a one-line error. Its policy type and
+    processor steps are registered as LeRobot's own scripts register them, from the installed plugins
+    (a fresh `lerobot-opfa policy` process has imported none)."""
     if not (policy_dir / "config.json").is_file():
         raise ValueError(f"{policy_dir}: not a checkpoint folder (no config.json; give its pretrained_model)")
+    register_third_party_plugins()
     return PreTrainedConfig.from_pretrained(policy_dir)
 
 
