@@ -101,16 +101,18 @@ def record(out: Path, row: dict) -> list[dict]:
 
 def plot(runs: list[dict], path: Path) -> None:
     """One bar per run: its success on the pair it was evaluated on, grouped by what it trained on."""
-    fig, ax = plt.subplots(figsize=(11, 4.6))
+    fig, ax = plt.subplots(figsize=(12, 5.4))
     labels = []
     for i, run in enumerate(runs):
-        trained = " & ".join("+".join(p) for p in run["trained_on"])
+        trained = "\n".join("+".join(p) for p in run["trained_on"])
         seen = run["hands"] in run["trained_on"]
         rate = 100 * run["successes"] / run["episodes"]
         ax.bar(i, rate, color="tab:blue" if run["action_space"] == "galr" else "tab:orange",
                hatch=None if seen else "//")  # fmt: skip
         ax.text(i, rate + 1, f"{run['successes']}/{run['episodes']}", ha="center", fontsize=8)
-        labels.append(f"{'+'.join(run['hands'])}\n{run['action_space']}, {run['deploy']}\ntrained: {trained}")
+        labels.append(
+            f"{'+'.join(run['hands'])}\n{run['action_space']}\n{run['deploy']}\ntrained on\n{trained}"
+        )
     ax.set(xticks=range(len(runs)), ylabel="success (%)", ylim=(0, 110),
            title=f"{TASK}, {REGION}: hatched = a pair of hands the policy never saw")  # fmt: skip
     ax.set_xticklabels(labels, fontsize=7)
