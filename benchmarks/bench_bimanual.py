@@ -40,29 +40,11 @@ from lerobot_opfa.experiments.jobs import (  # noqa: E402
     Workspace,
     write_json,
 )
-from lerobot_opfa.experiments.scales import SCALES, Scale  # noqa: E402
+from lerobot_opfa.experiments.scales import fixed_epochs  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"
 REGION = "mid_center"
 TASK = LiftTray.name
-
-
-def scale(demos: int, epochs: int, episodes: int) -> Scale:
-    """The `small` scale's policy, trained for exactly `epochs` passes over the demos."""
-    small = SCALES["small"]
-    return Scale(
-        name=f"bimanual-{demos}x{epochs}",
-        demos=demos,
-        fewshot_counts=(),
-        epochs=epochs,
-        min_steps=1,
-        max_steps=None,
-        batch_size=small.batch_size,
-        eval_episodes=episodes,
-        eval_batch_size=small.eval_batch_size,
-        n_points=small.n_points,
-        policy_args=small.policy_args,
-    )
 
 
 def cells(demos: int) -> list[tuple[Training, str]]:
@@ -132,7 +114,12 @@ def main() -> None:
     parser.add_argument("--rig", help="fold in the two-armed rig's results, benchmarks/results/RIG.json")
     parser.add_argument("--results", type=Path, default=RESULTS)
     args = parser.parse_args()
-    workspace = Workspace(args.work, scale(args.demos, args.epochs, args.episodes), args.galr, threads=1)
+    workspace = Workspace(
+        args.work,
+        fixed_epochs(f"bimanual-{args.demos}x{args.epochs}", args.demos, args.epochs, args.episodes),
+        args.galr,
+        threads=1,
+    )
     out = args.results / "bimanual.json"
     for row in rig_rows(args.results, args.rig) if args.rig else []:
         plot(record(out, row), args.results / "bimanual.png")

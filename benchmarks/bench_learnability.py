@@ -38,7 +38,7 @@ from lerobot_opfa.experiments.jobs import (  # noqa: E402
     galr_identity,
     write_json,
 )
-from lerobot_opfa.experiments.scales import SCALES, Scale  # noqa: E402
+from lerobot_opfa.experiments.scales import Scale, fixed_epochs  # noqa: E402
 from lerobot_opfa.galr.checkpoints import packaged_path  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"
@@ -49,20 +49,7 @@ CONDITION = {"raw": "wo_cotrain", "galr": "opfa"}
 
 def scale(epochs: int) -> Scale:
     """The `small` scale's policy, trained for exactly `epochs` passes over the demos."""
-    small = SCALES["small"]
-    return Scale(
-        name=f"learnability-{epochs}",
-        demos=DEMOS,
-        fewshot_counts=(),
-        epochs=epochs,
-        min_steps=1,
-        max_steps=None,
-        batch_size=small.batch_size,
-        eval_episodes=EPISODES,
-        eval_batch_size=small.eval_batch_size,
-        n_points=small.n_points,
-        policy_args=small.policy_args,
-    )
+    return fixed_epochs(f"learnability-{epochs}", DEMOS, epochs, EPISODES)
 
 
 def run(work: Path, galr: str, hand: str, task: str, space: str, epochs: int) -> dict:

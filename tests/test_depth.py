@@ -46,7 +46,9 @@ def record(
         obs, _ = env.reset(seed=episode)
         for _ in range(frames):
             sim_clouds.append(obs["pointcloud"].reshape(-1, 3))
-            depths = env._cloud.depth_images(env.data)  # the images the simulator's cloud was made from
+            depths = env.views.sampler.depth_images(
+                env.data
+            )  # the images the simulator's cloud was made from
             frame = {"observation.state": obs["agent_pos"].astype(np.float32), "task": "lift the object"}
             frame["action"] = frame["observation.state"]
             for key, depth in zip(KEYS, depths, strict=True):
@@ -55,7 +57,7 @@ def record(
             obs, *_ = env.step(obs["agent_pos"])
         dataset.save_episode()
     dataset.finalize()
-    cameras = dict(zip(KEYS, env._cloud.pinhole_cameras(env.data), strict=True))
+    cameras = dict(zip(KEYS, env.views.sampler.pinhole_cameras(env.data), strict=True))
     calibration = root / "cameras.yaml"
     calibration.write_text(yaml.safe_dump(DepthRig(cameras).to_dict()))
     env.close()

@@ -18,12 +18,10 @@ import numpy as np
 from lerobot_opfa.datasets.joint_map import HANDS_SEPARATOR, SIDES, JointMap, arm_entries
 from lerobot_opfa.envs.env import POINTCLOUD_SOURCES, OpfaSimEnv, check_choice, parse_cameras
 from lerobot_opfa.envs.experts import ScriptedExpert
-from lerobot_opfa.envs.observation import DepthPointCloud, GeometryPointCloud
+from lerobot_opfa.envs.observation import SceneViews
 from lerobot_opfa.envs.regions import REGIONS, parse_regions
 from lerobot_opfa.envs.scene import (
     HOME,
-    RENDER_CAMERA,
-    SCENERY_GROUP,
     WRIST_JOINTS,
     WRIST_RANGE,
     Scene,
@@ -240,10 +238,7 @@ class OpfaBimanualEnv(gym.Env):
         if "state" in self.obs_type:
             spaces["environment_state"] = gym.spaces.Box(-np.inf, np.inf, (ENV_STATE_DIM,), np.float64)
         self.observation_space = gym.spaces.Dict(spaces)
-        self._cloud: DepthPointCloud | GeometryPointCloud | None = None
-        self._renderer: mujoco.Renderer | None = None
-        self._picture_option = mujoco.MjvOption()
-        self._picture_option.geomgroup[SCENERY_GROUP] = 1
+        self.views = SceneViews(model, pointcloud_source, n_points, self.depth_cameras, self.render_size)
         self.placement: Placement | None = None
         self.region: str | None = None
 
@@ -297,21 +292,12 @@ class OpfaBimanualEnv(gym.Env):
             home=self.homes[side],
         )
 
-    def _point_cloud(self) -> np.ndarray:
-        if self._cloud is None:
-            if self.pointcloud_source == "depth":
-                self._cloud = DepthPointCloud(self.model, self.n_points, self.depth_cameras)
-            else:
-                exclude = {self.scene.table_geom, self.model.geom("floor").id}
-                self._cloud = GeometryPointCloud(self.model, self.n_points, exclude)
-        return self._cloud(self.data, self.np_random).reshape(-1)
-
     def observation(self) -> dict[str, np.ndarray]:
         qpos = self.data.qpos
         arms = self.scene.arms.values()
         obs = {"agent_pos": np.concatenate([qpos[np.r_[a.wrist_qpos, a.hand_qpos]] for a in arms])}
         if "pointcloud" in self.obs_type:
-            obs["pointcloud"] = self._point_cloud()
+            obs["pointcloud"] = self.views.point_cloud(self.data, self.np_random)
         if "state" in self.obs_type:
             obs["environment_state"] = self.task.env_state(self.scene, self.data)
         return obs
@@ -343,20 +329,10 @@ class OpfaBimanualEnv(gym.Env):
         return self.observation(), float(success), success, False, {"is_success": success}
 
     def render(self) -> np.ndarray:
-        if self._renderer is None:
-            self._renderer = mujoco.Renderer(
-                self.model, height=self.render_size[0], width=self.render_size[1]
-            )
-            self._renderer.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
-            self._renderer.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = False
-        self._renderer.update_scene(self.data, camera=RENDER_CAMERA[0], scene_option=self._picture_option)
-        return self._renderer.render()
+        return self.views.picture(self.data)
 
     def close(self) -> None:
-        for resource in (self._cloud, self._renderer):
-            if resource is not None:
-                resource.close()
-        self._cloud = self._renderer = None
+        self.views.close()
 
 
 @dataclass

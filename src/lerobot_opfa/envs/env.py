@@ -9,13 +9,11 @@ import mujoco
 import numpy as np
 
 from lerobot_opfa.envs.control import EE_ACTION_NAMES, EE_STATE_NAMES, EndEffectorDeltas, check_control
-from lerobot_opfa.envs.observation import ColourCameras, DepthPointCloud, GeometryPointCloud
+from lerobot_opfa.envs.observation import ColourCameras, SceneViews
 from lerobot_opfa.envs.regions import REGIONS, parse_regions
 from lerobot_opfa.envs.scene import (
     DEPTH_CAMERAS,
     HOME,
-    RENDER_CAMERA,
-    SCENERY_GROUP,
     WRIST_JOINTS,
     WRIST_RANGE,
     attach_hand,
@@ -120,11 +118,8 @@ class OpfaSimEnv(gym.Env):
             spaces["pixels"] = gym.spaces.Dict({f"{c}_rgb": picture for c in self.rgb_cameras})
         self.observation_space = gym.spaces.Dict(spaces)
 
-        self._cloud: DepthPointCloud | GeometryPointCloud | None = None
+        self.views = SceneViews(self.model, pointcloud_source, n_points, self.depth_cameras, self.render_size)
         self._colour: ColourCameras | None = None
-        self._renderer: mujoco.Renderer | None = None
-        self._picture_option = mujoco.MjvOption()  # what pictures show: the default groups and the scenery
-        self._picture_option.geomgroup[SCENERY_GROUP] = 1
         self.placement: Placement | None = None
         self.region: str | None = None
 
@@ -161,15 +156,6 @@ class OpfaSimEnv(gym.Env):
         experts give)."""
         return targets if self.ee is None else self.ee.command(targets)
 
-    def _point_cloud(self) -> np.ndarray:
-        if self._cloud is None:
-            if self.pointcloud_source == "depth":
-                self._cloud = DepthPointCloud(self.model, self.n_points, self.depth_cameras)
-            else:
-                exclude = {self.scene.table_geom, self.model.geom("floor").id}
-                self._cloud = GeometryPointCloud(self.model, self.n_points, exclude)
-        return self._cloud(self.data, self.np_random).reshape(-1)
-
     def observation(self) -> dict[str, np.ndarray]:
         wrist, hand = self.data.qpos[self.scene.wrist_qpos], self.data.qpos[self.scene.hand_qpos]
         if self.ee is None:
@@ -177,7 +163,7 @@ class OpfaSimEnv(gym.Env):
         else:
             obs = {"agent_pos": self.ee.state(wrist, self.data.qvel[self.wrist_qvel], hand[0])}
         if "pointcloud" in self.obs_type:
-            obs["pointcloud"] = self._point_cloud()
+            obs["pointcloud"] = self.views.point_cloud(self.data, self.np_random)
         if "state" in self.obs_type:
             obs["environment_state"] = self.task.env_state(self.scene, self.data)
         if "rgb" in self.obs_type:
@@ -216,24 +202,10 @@ class OpfaSimEnv(gym.Env):
         return self.observation(), float(success), success, False, {"is_success": success}
 
     def render(self) -> np.ndarray:
-        if self._renderer is None:
-            self._renderer = mujoco.Renderer(
-                self.model, height=self.render_size[0], width=self.render_size[1]
-            )
-            # Without a GPU (Mesa's software GL) shadows and reflections make a frame 6x slower (113 vs
-            # 19 ms), and lerobot-eval renders every step of the episodes it films.
-            self._renderer.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
-            self._renderer.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = False
-        self._renderer.update_scene(self.data, camera=RENDER_CAMERA[0], scene_option=self._picture_option)
-        return self._renderer.render()
+        return self.views.picture(self.data)
 
     def close(self) -> None:
-        if self._cloud is not None:
-            self._cloud.close()
-            self._cloud = None
+        self.views.close()
         if self._colour is not None:
             self._colour.close()
             self._colour = None
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None

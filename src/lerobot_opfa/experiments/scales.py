@@ -135,3 +135,22 @@ def get_scale(name: str) -> Scale:
     if name not in SCALES:
         raise ValueError(f"unknown scale '{name}'; valid scales: {', '.join(SCALES)}")
     return SCALES[name]
+
+
+def fixed_epochs(name: str, demos: int, epochs: int, episodes: int) -> Scale:
+    """The `small` scale's policy and evaluation, trained for exactly `epochs` passes over `demos` demos per
+    embodiment and evaluated on `episodes` episodes (the benchmarks that measure training length)."""
+    small = SCALES["small"]
+    return Scale(
+        name=name,
+        demos=demos,
+        fewshot_counts=(),
+        epochs=epochs,
+        min_steps=1,
+        max_steps=None,
+        batch_size=small.batch_size,
+        eval_episodes=episodes,
+        eval_batch_size=small.eval_batch_size,
+        n_points=small.n_points,
+        policy_args=small.policy_args,
+    )
