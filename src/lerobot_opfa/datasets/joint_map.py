@@ -282,11 +282,6 @@ class JointMap:
         source = f"hands {HANDS_SEPARATOR.join(spec.name for spec in arms.values())}"
         return cls(slots, source=source).bind(state_names, action_names)
 
-    @property
-    def hands(self) -> list[str]:
-        """Each slot's hand (what `load_hand` takes)."""
-        return [slot.hand for slot in self.slots]
-
     def with_hand(self, old: str, new: str) -> JointMap:
         """This map with the slots of hand reference `old` pointing at `new` (a user hand unpacked
         elsewhere)."""

@@ -66,10 +66,6 @@ class TwoArms:
     def hand_geoms(self) -> np.ndarray:
         return np.concatenate([arm.hand_geoms for arm in self.arms.values()])
 
-    @property
-    def table_geom(self) -> int:
-        return self.model.geom("table").id
-
 
 class LiftTray(Task):
     """Lift a tray by its two handles, both 6 cm up and each half level within 10 degrees. The tray is two

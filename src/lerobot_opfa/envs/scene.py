@@ -48,7 +48,6 @@ class Scene:
     hand_qpos: np.ndarray  # qpos addresses of the hand's actuated joints, in spec order
     chain_qpos: np.ndarray  # qpos addresses of every hand joint, in `hand.chain_joint_names` order
     hand_geoms: np.ndarray  # geom ids of the hand
-    table_geom: int
     ctrl: np.ndarray  # actuator ids of the wrist's six joints, then the hand's, in spec order
 
 
@@ -171,7 +170,6 @@ def index_arm(model: mujoco.MjModel, hand: HandModel, tool: ToolFrame, prefix: s
         hand_qpos=qpos([f"{prefix}hand/{j}" for j in hand.joint_names]),
         chain_qpos=qpos([f"{prefix}hand/{j}" for j in hand.chain_joint_names]),
         hand_geoms=np.array([g for g in range(model.ngeom) if model.geom_bodyid[g] in hand_bodies]),
-        table_geom=model.geom("table").id,
         ctrl=np.array(
             [model.actuator(f"{prefix}act_{j}").id for j in WRIST_JOINTS]
             + [model.actuator(f"{prefix}hand/act_{j}").id for j in hand.joint_names]
