@@ -237,10 +237,11 @@ def test_a_mirrored_builtin_is_refused_naming_its_side(name, tmp_path):
     raw.update(name=f"my_{name}", model=str(model))
     spec = _write(tmp_path / "spec.yaml", raw)
     lines, warnings, problems = frame_report(load_hand(spec))
+    told_by = frame.measure(load_hand(name)).side_told_by  # the index where the thumb is centred (Dex3)
     assert warnings == []
     assert problems == [
-        "the model is a left hand (its thumb on +x, the palm on +y, the fingers on +z), the spec a right "
-        "one: use the vendor's right-hand model, or declare `side: left`"
+        f"the model is a left hand (the {told_by} on +x, the palm on +y, the fingers on +z), the spec a "
+        "right one: use the vendor's right-hand model, or declare `side: left`"
     ]
     raw["side"] = "left"
     assert frame_report(load_hand(_write(spec, raw)))[1:] == ([], [])

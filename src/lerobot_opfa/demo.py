@@ -45,11 +45,13 @@ def hands_table(args: argparse.Namespace) -> None:
 
     from lerobot_opfa.galr import checkpoints
     from lerobot_opfa.galr.evaluate import evaluate_hand, held_out_joints, plot_reconstructions
+    from lerobot_opfa.galr.frozen import galr_hand_refs
     from lerobot_opfa.hands.plot import plot_clouds
     from lerobot_opfa.hands.registry import builtin_hands, load_hand
     from lerobot_opfa.hands.validate import fk_error_vs_mujoco
 
     galr = checkpoints.load(args.galr)
+    trained_on = galr_hand_refs(galr)
     rows = []
     for name in tqdm(list(builtin_hands()), desc="hands", unit="hand"):
         hand = load_hand(name)
@@ -61,15 +63,20 @@ def hands_table(args: argparse.Namespace) -> None:
             p: (cloud.points[i].numpy(), cloud.labels[i].numpy()) for i, p in enumerate(("open", "grasp"))
         }
         png = plot_clouds(clouds, args.output_dir / f"hand_{name}.png", title=hand.spec.description)
-        galr_metrics = evaluate_hand(galr, name, held_out_joints(galr, name, args.states, seed=0))
+        galr_metrics = (
+            evaluate_hand(galr, name, held_out_joints(galr, name, args.states, seed=0))
+            if name in trained_on
+            else None
+        )
         rows.append((name, hand.dof, position_error, galr_metrics, png))
-    reconstructions = plot_reconstructions(
-        galr, list(builtin_hands()), args.output_dir / "galr_reconstructions.png"
-    )
+    reconstructions = plot_reconstructions(galr, trained_on, args.output_dir / "galr_reconstructions.png")
 
     header = f"{'hand':<16}{'dof':>4}{'FK vs MuJoCo (m)':>18}{'GaLR RMSE (deg)':>17}{'fingertip (mm)':>16}"
     print(f"\n{header}  picture")
     for name, dof, error, metrics, png in rows:
+        if metrics is None:
+            print(f"{name:<16}{dof:>4}{error:>18.1e}{'not in this GaLR':>33}  {png}")
+            continue
         rmse, tip = metrics["joint_rmse_deg"], metrics["fingertip_error_mm"]
         print(f"{name:<16}{dof:>4}{error:>18.1e}{rmse:>17.2f}{tip:>16.2f}  {png}")
     print(f"GaLR {args.galr}: original vs decoded clouds in {reconstructions}\n")

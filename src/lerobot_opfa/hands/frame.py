@@ -6,7 +6,8 @@ against it (a palm measured from the flexions themselves turns a wrong sign into
 All at q = 0 (clipped into the limits). The fingers point from each finger's root link to its tip, the
 thumb left out (many thumbs stand sideways at rest). The palm is the side the fingers curl to: the side
 their flexion joints' ranges reach farther, since a finger curls far towards the palm and bends back
-little. The hand is a right hand when its thumb lies on -x of the frame these two directions make. A
+little. The hand is a right hand when its thumb lies on -x of the frame these two directions make, or,
+where the thumb stands between the other fingers (Unitree's Dex3), when the first of them (the index) does. A
 flexion joint's sign is right when its universal sense moves the fingertip towards the palm, a thumb's
 towards the other fingertips.
 """
@@ -23,7 +24,7 @@ import torch
 
 from lerobot_opfa.hands.model import HandModel
 from lerobot_opfa.hands.spec import BaseFrame, HandSpecError
-from lerobot_opfa.hands.universal import UNIVERSAL_INDEX, UNIVERSAL_JOINTS
+from lerobot_opfa.hands.universal import FINGERS, UNIVERSAL_INDEX, UNIVERSAL_JOINTS
 
 THUMB = 1
 STEP = 0.05
@@ -34,6 +35,9 @@ PALM_CLEAR = 0.2
 """Share of the flexion ranges' reach that must agree on one side for the palm to be told."""
 THUMB_CLEAR = 0.005
 """Metres the thumb's root must lie off the other fingers' roots, across the palm, to tell the hand."""
+THUMB_OFF_CENTRE = 0.35
+"""Share of the other fingers' half-width across the palm that the thumb's root must lie off their centre
+to tell the hand; nearer the centre, the first finger after the thumb tells it."""
 SNAP_DEG = 30.0
 """A measured frame this close to a quarter-turn frame is taken as that frame (CAD tools use those)."""
 ORIGIN_TOLERANCE = 0.05
@@ -62,6 +66,9 @@ class HandFrame:
     across: tuple[int, ...] = ()
     """The fingers other than the thumb in the order their tips lie across the palm, from the thumb's side
     (from -x where there is no thumb); empty where the palm is not told."""
+    side_told_by: str = "thumb"
+    """The finger whose side across the palm told `side`: the thumb, or the index where the thumb is
+    centred."""
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
@@ -128,10 +135,14 @@ def measure(hand: HandModel) -> HandFrame:
         return HandFrame(palm_faces=None, side=None, flexion={}, **measured)
     palm = _unit(curl)
 
-    side = None
+    side, told_by = None, "thumb"
     if THUMB in fingers:
-        across = (root_at[fingers.index(THUMB)] - root_at[others].mean(0)) @ np.cross(palm, point)
-        side = None if abs(across) < THUMB_CLEAR else "right" if across < 0 else "left"
+        at = (root_at - root_at[others].mean(0)) @ np.cross(palm, point)
+        first = min(others, key=lambda i: fingers[i])
+        off = at[fingers.index(THUMB)]
+        if abs(off) < THUMB_OFF_CENTRE * np.ptp(at[others]) / 2:
+            off, told_by = at[first], f"{FINGERS[fingers[first]]} finger"
+        side = None if abs(off) < THUMB_CLEAR else "right" if off < 0 else "left"
     across_palm = tips[others] @ np.cross(palm, point) * (-1.0 if side == "left" else 1.0)
     across = tuple(fingers[others[i]] for i in np.argsort(across_palm))
     fingertips = tips[others].mean(0)
@@ -139,7 +150,9 @@ def measure(hand: HandModel) -> HandFrame:
     for j, joint, i in flexions:
         target = palm if fingers[i] != THUMB else _unit(fingertips - tips[i])
         flexion[joint] = float(_unit(float(hand.universal_sign[j]) * rate[j, i]) @ target)
-    return HandFrame(palm_faces=palm, side=side, across=across, flexion=flexion, **measured)
+    return HandFrame(
+        palm_faces=palm, side=side, side_told_by=told_by, across=across, flexion=flexion, **measured
+    )
 
 
 def signs_to_flip(frame: HandFrame) -> list[str]:

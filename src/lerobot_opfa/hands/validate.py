@@ -128,11 +128,11 @@ def frame_report(hand: HandModel) -> tuple[list[str], list[str], list[str]]:
         warnings.append(f"{'; '.join(off)}: put the model in the documented hand frame with {fix}")
 
     if measured.side is not None:
-        thumb = "-x" if measured.side == "right" else "+x"
-        lines.append(f"a {measured.side} hand: the thumb on {thumb} (spec: {hand.spec.side})")
+        where = f"the {measured.side_told_by} on {'-x' if measured.side == 'right' else '+x'}"
+        lines.append(f"a {measured.side} hand: {where} (spec: {hand.spec.side})")
         if measured.side != hand.spec.side:
             problems.append(
-                f"the model is a {measured.side} hand (its thumb on {thumb}, the palm on +y, the fingers on "
+                f"the model is a {measured.side} hand ({where}, the palm on +y, the fingers on "
                 f"+z), the spec a {hand.spec.side} one: use the vendor's {hand.spec.side}-hand model, or "
                 f"declare `side: {measured.side}`"
             )
