@@ -1,5 +1,6 @@
 """Two hands per frame, as published bimanual datasets lay them out (written with LeRobot's own writer): a
-Unitree G1 with Inspire hands (0-1 units, 1 = open) with its arms first or with each arm beside its hand,
+Unitree G1 with Dex3 hands (radians, the left hand's joints mirrored, each hand's fingers in another order), a
+G1 with Inspire hands (0-1 units, 1 = open) with its arms first or with each arm beside its hand,
 LeRobot's two-arm rig (`bi_so_follower` naming) with a gripper on each arm, and a rig with different hands
 on its two sides. One joint map with a slot per hand reads each; the policy holds one hand part per slot
 (a latent each for `galr`), and the checkpoint gives back the robot's entries in its order and units."""
@@ -19,7 +20,7 @@ from lerobot.processor import TransitionKey
 from lerobot.processor.converters import batch_to_transition
 from lerobot.utils.constants import ACTION, OBS_STATE
 from subprocesses import run_lerobot_here
-from test_map_hint import G1_ARM, G1_INSPIRE, SO101
+from test_map_hint import DEX3, G1_ARM, G1_INSPIRE, SO101, hint, proposed_maps
 from test_policy import batch_of, make_policy, save_galr
 
 from lerobot_opfa import cli
@@ -37,6 +38,8 @@ INSPIRE_OF = {  # the G1 SDK's Inspire motor -> the spec's joint
     "Index": "index_mcp_flex", "ThumbBend": "thumb_bend", "ThumbRotation": "thumb_yaw",
 }  # fmt: skip
 SIDES = ("left", "right")
+G1_MERGED = ("g1_inspire_arms_first", "g1_xhand", "g1_dex3")
+"""G1s whose arms are the same and whose hands differ: one merge."""
 
 
 def g1_inspire_slot(side: str) -> dict:
@@ -48,6 +51,18 @@ def g1_inspire_slot(side: str) -> dict:
         for motor, joint in INSPIRE_OF.items()
     }
     return {"side": side, "hand": "inspire", "joints": joints}
+
+
+def g1_dex3_slot(side: str) -> dict:
+    """One G1 Dex3 hand's slot, in radians as its SDK reports them: Unitree's left hand is the right one
+    mirrored, each joint negated but the thumb's rotation, so its entries map onto the right-hand model with
+    scale -1."""
+    joints = {}
+    for motor in DEX3:
+        joint = f"{motor[:-1].lower()}_{motor[-1]}"  # Thumb0 -> thumb_0
+        mirrored = side == "left" and motor != "Thumb0"
+        joints[f"k{side.title()}Hand{motor}"] = {"joint": joint, "scale": -1.0} if mirrored else joint
+    return {"side": side, "hand": "dex3", "joints": joints}
 
 
 def named_slot(side: str, hand: str, prefix: str) -> dict:
@@ -68,6 +83,12 @@ ROBOTS = {
         [*(f"kLeft{j}" for j in G1_ARM), *(f"kLeftHand{j}" for j in G1_INSPIRE),
          *(f"kRight{j}" for j in G1_ARM), *(f"kRightHand{j}" for j in G1_INSPIRE)],
         [g1_inspire_slot(side) for side in SIDES],
+    ),
+    "g1_dex3": (  # the published order: each hand's fingers listed differently (left middle first)
+        ("dex3", "dex3"),
+        [*(f"k{s}{j}" for s in ("Left", "Right") for j in G1_ARM), *(f"kLeftHand{j}" for j in DEX3),
+         *(f"kRightHand{j}" for j in (*DEX3[:3], *DEX3[5:], *DEX3[3:5]))],
+        [g1_dex3_slot(side) for side in SIDES],
     ),
     "g1_xhand": (  # the same G1 arms, XHand hands (entries named after the spec's joints)
         ("xhand", "xhand"),
@@ -135,9 +156,10 @@ def write_robot(root: Path, sources: dict[str, Path], name: str) -> Path:
 @pytest.fixture(scope="module")
 def robots(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("two_hands")
-    save_galr(root / "galr", ["inspire", "robotiq_2f85", "xhand"])
+    hands = ["inspire", "robotiq_2f85", "xhand", "dex3"]
+    save_galr(root / "galr", hands)
     sources = {}
-    for seed, hand in enumerate(["inspire", "robotiq_2f85", "xhand"]):
+    for seed, hand in enumerate(hands):
         sources[hand] = write_synthetic_dataset(
             root / f"{hand}_sim", hand, episodes=2, frames=16, n_points=N_POINTS, seed=seed
         )
@@ -147,7 +169,7 @@ def robots(tmp_path_factory) -> Path:
         alone = ["dataset", "merge", "--inputs", str(root / name), "--output", str(root / f"{name}_merged"),
                  "--galr", str(root / "galr"), "--joint-maps", str(root / f"{name}.yaml")]  # fmt: skip
         assert cli.main(alone) == 0
-    names = ("g1_inspire_arms_first", "g1_xhand")
+    names = G1_MERGED
     merge = ["dataset", "merge", "--inputs", *(str(root / n) for n in names), "--output",
              str(root / "g1_merged"), "--galr", str(root / "galr"), "--joint-maps",
              *(f"{root / n}={root / f'{n}.yaml'}" for n in names)]  # fmt: skip
@@ -273,7 +295,7 @@ def test_a_trained_g1_checkpoint_alone_turns_its_frames_into_its_26_entries(
     robots, tmp_path, dataset, space, trainer, monkeypatch
 ):
     """`lerobot-train --policy.joint_map` on the G1 layout as published (no renaming), or `lerobot-opfa train`
-    on the merge of two G1s; the checkpoint alone turns a frame of the Inspire G1 into its 26 entries, the
+    on the merge of three G1s; the checkpoint alone turns a frame of the Inspire G1 into its 26 entries, the
     hands' in 0..1."""
     out, name = tmp_path / "train", "g1_inspire_arms_first"
     flags = _train_flags(robots, dataset, space, out)
@@ -283,7 +305,7 @@ def test_a_trained_g1_checkpoint_alone_turns_its_frames_into_its_26_entries(
         assert cli.main(["train", *flags]) == 0
     checkpoint = out / "checkpoints" / "last" / "pretrained_model"
     policy = OpfaPolicy.from_pretrained(checkpoint)
-    robots_trained = [[0, 0]] if dataset == name else [[0, 0], [1, 1]]
+    robots_trained = [[0, 0]] if dataset == name else [[0, 0], [1, 1], [2, 2]]
     assert policy.config.robots == robots_trained
     overrides = {} if dataset == name else {"opfa_encode_joints": {"hand": "inspire+inspire"}}
     pre, post = make_pre_post_processors(
@@ -298,19 +320,19 @@ def test_a_trained_g1_checkpoint_alone_turns_its_frames_into_its_26_entries(
     assert ((hands > -0.05) & (hands < 1.05)).all(), f"the hands' entries in 0..1: {hands}"
 
 
-def test_two_g1s_with_different_hands_merge_and_co_train_and_each_gets_its_own_entries_back(robots):
-    """A G1 with Inspire hands and a G1 with XHand hands share their arms: one merge (each slot's universal
+def test_g1s_with_different_hands_merge_and_co_train_and_each_gets_its_own_entries_back(robots):
+    """G1s with Inspire, XHand and Dex3 hands share their arms: one merge (each slot's universal
     joints and cached z, one id per slot; the `robots` fixture), one policy, and each robot's frames come
     back in its entries."""
-    names = ("g1_inspire_arms_first", "g1_xhand")
+    names = G1_MERGED
     features = LeRobotDatasetMetadata("local/g1_merged", root=robots / "g1_merged").features
     assert features[OBS_EMBODIMENT]["shape"] == (2,)
-    assert features[OBS_EMBODIMENT]["names"] == ["inspire", "xhand"]
+    assert features[OBS_EMBODIMENT]["names"] == ["inspire", "xhand", "dex3"]
     assert {"left.index_mcp_flex", "right.z0"} <= set(features[OBS_STATE]["names"])
     ids = torch.tensor(read_columns(robots / "g1_merged", [OBS_EMBODIMENT])[OBS_EMBODIMENT])
     for space in ("per_embodiment", "galr"):
         policy, pre, post, frames = make_policy(robots, "g1_merged", action_space=space)
-        assert policy.config.robots == [[0, 0], [1, 1]]
+        assert policy.config.robots == [[0, 0], [1, 1], [2, 2]]
         now = policy.config.n_obs_steps - 1  # the chunk's step of the frame itself
         for robot, name in enumerate(names):
             mine = torch.nonzero((ids == robot).all(1))[:, 0]
@@ -322,12 +344,12 @@ def test_two_g1s_with_different_hands_merge_and_co_train_and_each_gets_its_own_e
             assert back.shape[-1] == expected.shape[-1], f"{name}: its own entries"
             if space == "per_embodiment":
                 assert torch.allclose(back[:, now], expected, atol=1e-4), f"{name}: its entries, order, units"
-        loss, _ = policy.forward(pre(batch_of(frames, [2, 5, 40, 45])))
+        loss, _ = policy.forward(pre(batch_of(frames, [2, 5, 40, 45, 70, 75])))
         assert loss.isfinite()
 
 
-def test_a_latent_dataset_of_two_g1s_holds_the_arms_then_a_latent_per_side(robots, tmp_path):
-    """The stock-policy path (`policy latent-dataset`) on the merge of two two-handed G1s: body, then a
+def test_a_latent_dataset_of_g1s_with_different_hands_holds_the_arms_then_a_latent_per_side(robots, tmp_path):
+    """The stock-policy path (`policy latent-dataset`) on the merge of three two-handed G1s: body, then a
     latent per slot, named by side."""
     out = tmp_path / "latent"
     latent = ["policy", "latent-dataset", "--input", str(robots / "g1_merged"), "--output", str(out),
@@ -337,3 +359,28 @@ def test_a_latent_dataset_of_two_g1s_holds_the_arms_then_a_latent_per_side(robot
     body = [f"k{s}{j}" for s in ("Left", "Right") for j in G1_ARM]
     latent_dim = len([n for n in names if n.startswith("left.z")])
     assert latent_dim > 0 and names == [*body, *(f"{s}.z{i}" for s in SIDES for i in range(latent_dim))]
+
+
+def test_a_g1_with_dex3_hands_is_recorded_in_the_vendors_senses_and_the_hint_proposes_its_map(robots):
+    """Unitree reports the left Dex3's fingers in -1.57..0 and the right's in 0..1.57. The closest-hand hint
+    on the recorded dataset proposes a Dex3 on each side, with scale -1 for each left entry whose recorded
+    range fits the right-hand model only negated, and none on the right."""
+    name = "g1_dex3"
+    _, names, slots = ROBOTS[name]
+    action = read_columns(robots / name, [ACTION])[ACTION]
+    for side, sense in (("Left", -1.0), ("Right", 1.0)):
+        for finger in ("Index", "Middle"):
+            entries = action[:, [names.index(f"k{side}Hand{finger}{i}") for i in (0, 1)]]
+            assert (sense * entries >= -1e-6).all() and (sense * entries).max() > 0.1, (side, finger)
+    meta = LeRobotDatasetMetadata(f"local/{name}", root=robots / name)
+    maps = proposed_maps(hint(meta.features, meta.robot_type, robots / name))
+    assert {side: proposed["hand"] for side, proposed in maps.items() if side != "map"} == {
+        "left": "dex3", "right": "dex3"
+    }  # fmt: skip
+    assert all(isinstance(joint, str) for joint in maps["right"]["joints"].values()), "the right as recorded"
+    recorded = torch.tensor(action, dtype=torch.float64)
+    proposed = JointMap.from_dict(maps["map"]).bind(names, names).split(recorded, ACTION)
+    written = bound_map(robots, name).split(recorded, ACTION)
+    assert torch.equal(proposed[0], written[0])
+    for q_proposed, q_written in zip(proposed[1], written[1], strict=True):
+        assert torch.allclose(q_proposed, q_written), "the proposal reads each hand as the written map does"
