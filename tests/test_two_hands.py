@@ -384,3 +384,16 @@ def test_a_g1_with_dex3_hands_is_recorded_in_the_vendors_senses_and_the_hint_pro
     assert torch.equal(proposed[0], written[0])
     for q_proposed, q_written in zip(proposed[1], written[1], strict=True):
         assert torch.allclose(q_proposed, q_written), "the proposal reads each hand as the written map does"
+
+
+def test_a_merge_with_a_galr_that_lacks_the_robots_hand_says_how_to_add_it(robots, tmp_path, capsys):
+    """The packaged GaLRs hold the paper's 11 hands, not the Dex3: a G1 + Dex3 merge names the command that
+    adds it, in one line."""
+    galr = save_galr(tmp_path / "galr", ["inspire"])
+    merge = ["dataset", "merge", "--inputs", str(robots / "g1_dex3"), "--output", str(tmp_path / "out"),
+             "--galr", str(galr), "--joint-maps", str(robots / "g1_dex3.yaml")]  # fmt: skip
+    assert cli.main(merge) == 2
+    error = capsys.readouterr().err.strip().splitlines()[-1]
+    assert error.startswith("error: hand(s) ['dex3'] are not in the GaLR registry of ")
+    assert error.endswith(f"add them with `lerobot-opfa galr pretrain --init {galr} --hands +dex3`")
+    assert not (tmp_path / "out").exists(), "nothing written"

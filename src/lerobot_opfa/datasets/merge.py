@@ -176,7 +176,10 @@ def merge_datasets(
     if galr is not None:
         unknown = [h for h in embodiments if h not in galr.config.hand_names]
         if unknown:
-            raise ValueError(f"hand(s) {unknown} are not in the GaLR registry ({galr.config.hand_names})")
+            raise ValueError(
+                f"hand(s) {unknown} are not in the GaLR registry of {galr_path} ({galr.config.hand_names}); "
+                f"add them with `lerobot-opfa galr pretrain --init {galr_path} --hands +{','.join(unknown)}`"
+            )
     latent_dim = galr.config.latent_dim if galr is not None else 0
     names = merged_names(wrist, sides, latent_dim)
     extra, cameras = _passthrough(opened), _cameras(opened)
