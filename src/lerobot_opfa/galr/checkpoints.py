@@ -16,8 +16,8 @@ if TYPE_CHECKING:
     from lerobot_opfa.galr.model import Galr
 
 PACKAGED = {
-    "default": ("galr_default", "11 built-in hands; pretrained 55 CPU minutes; 0.83 deg mean joint RMSE"),
-    "long": ("galr_long", "11 built-in hands; pretrained 135 CPU minutes; 1.09 deg mean joint RMSE"),
+    "default": ("galr_default", "the paper's 11 hands; pretrained 55 CPU minutes; 0.83 deg mean joint RMSE"),
+    "long": ("galr_long", "the paper's 11 hands; pretrained 135 CPU minutes; 1.09 deg mean joint RMSE"),
 }
 """Name -> (folder under `checkpoints/`, what it is); errors from benchmarks/results/galr_*_eval.json."""
 DEFAULT = "default"

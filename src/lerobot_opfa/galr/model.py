@@ -54,7 +54,7 @@ class GalrConfig:
     kernel_points: int = 15
     neighbor_limits: tuple[int, int, int, int] = (40, 16, 40, 12)
     """Neighbours kept for dense->level1, level1, level1->superpoints, superpoints: about the 60th-90th
-    percentile of the counts within each radius over random states of the 11 built-in hands."""
+    percentile of the counts within each radius over random states of the paper's 11 hands."""
     widths: tuple[int, int, int] = (64, 128, 256)
     transformer_dim: int = 128
     transformer_heads: int = 4
