@@ -10,6 +10,7 @@
 
     MUJOCO_GL=egl .venv/bin/python benchmarks/bench_bimanual.py [--demos 20] [--epochs 30] [--episodes 50]
         [--work outputs/bimanual] [--rig rig_two_hands]
+        [--conditions opfa,naive_cotrain] [--policy-arg=--policy.state_hand=false --name NAME]
 
 Every step goes through the experiment runner (`lerobot-opfa train`, then `lerobot-eval`), whose steps are
 idempotent: an interrupted benchmark resumes where it stopped. benchmarks/results/bimanual.json (a list
@@ -22,6 +23,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+from dataclasses import replace
 from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -47,12 +49,12 @@ REGION = "mid_center"
 TASK = LiftTray.name
 
 
-def cells(demos: int) -> list[tuple[Training, str]]:
+def cells(demos: int, conditions: list[str]) -> list[tuple[Training, str]]:
     """(training, the pair it is evaluated on) of (b)."""
     pairs = tuple(Demos(TASK, hands, (REGION,), demos) for hands in ("inspire+inspire", "xhand+xhand"))
     return [
         (Training(condition, pairs), hands)
-        for condition in ("opfa", "naive_cotrain")
+        for condition in conditions
         for hands in ("inspire+inspire", "xhand+xhand", "inspire+xhand")
     ]
 
@@ -113,17 +115,19 @@ def main() -> None:
     parser.add_argument("--galr", default="default")
     parser.add_argument("--rig", help="fold in the two-armed rig's results, benchmarks/results/RIG.json")
     parser.add_argument("--results", type=Path, default=RESULTS)
-    args = parser.parse_args()
-    workspace = Workspace(
-        args.work,
-        fixed_epochs(f"bimanual-{args.demos}x{args.epochs}", args.demos, args.epochs, args.episodes),
-        args.galr,
-        threads=1,
+    parser.add_argument("--name", default="bimanual", help="results as NAME.json and NAME.png")
+    parser.add_argument("--conditions", default="opfa,naive_cotrain", help="(b)'s, comma-separated")
+    parser.add_argument(
+        "--policy-arg", action="append", default=[], help="a training flag more for (b), with its own --work"
     )
-    out = args.results / "bimanual.json"
+    args = parser.parse_args()
+    scale = fixed_epochs(f"bimanual-{args.demos}x{args.epochs}", args.demos, args.epochs, args.episodes)
+    scale = replace(scale, policy_args=(*scale.policy_args, *args.policy_arg))
+    workspace = Workspace(args.work, scale, args.galr, threads=1)
+    out, picture = args.results / f"{args.name}.json", args.results / f"{args.name}.png"
     for row in rig_rows(args.results, args.rig) if args.rig else []:
-        plot(record(out, row), args.results / "bimanual.png")
-    for training, hands in cells(args.demos):
+        plot(record(out, row), picture)
+    for training, hands in cells(args.demos, args.conditions.split(",")):
         result = workspace.evaluate(Evaluation(training, TASK, hands, (REGION,)))
         row = {
             "hands": hands.split("+"),
@@ -137,7 +141,7 @@ def main() -> None:
         print(
             json.dumps(row), f"(commit {result['commit']}, training {result['training_commit']})", flush=True
         )
-        plot(record(out, row), args.results / "bimanual.png")
+        plot(record(out, row), picture)
 
 
 if __name__ == "__main__":
