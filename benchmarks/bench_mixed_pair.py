@@ -10,7 +10,8 @@ and its observation is put in place of the real one's, one input at a time:
   success over `--episodes` seeded episodes, beside the real cloud;
 - state: at step `--stall-step` of a closed-loop episode, the wrist travel the policy plans over one action
   chunk (mean over 3 noise seeds) with the real state, and with the shadow's state (named by the shadow's
-  hands, so each slot decodes through the hand it reads), the real cloud kept.
+  hands, so each slot decodes through the hand it reads), the real cloud kept; averaged over all episodes
+  and over those stalled there (both wrists still above 15 cm).
 
     MUJOCO_GL=egl .venv/bin/python benchmarks/bench_mixed_pair.py --checkpoint CKPT [--episodes 10]
         [--stall-step 48] [--name mixed_pair]
@@ -46,6 +47,8 @@ from lerobot_opfa.policy.modeling_opfa import OpfaPolicy  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"
 MIXED, SEEN = "inspire+xhand", ("inspire+inspire", "xhand+xhand")
+STALLED_CM = 15.0
+"""A wrist still this high at the probe has not come down to the handles (7 cm; the arms start at 30 cm)."""
 FREE_JOINT_SIZES = {int(mujoco.mjtJoint.mjJNT_FREE): 7, int(mujoco.mjtJoint.mjJNT_BALL): 4}
 
 
@@ -123,10 +126,11 @@ def cloud_swap(pilot: Pilot, episodes: int) -> dict[str, int]:
     return successes
 
 
-def state_swap(pilot: Pilot, episodes: int, stall_step: int) -> dict[str, list[float]]:
-    """Mean planned wrist travel (cm; left, right) at `stall_step` with the real and the shadows' states."""
+def state_swap(pilot: Pilot, episodes: int, stall_step: int) -> list[dict]:
+    """Per episode, the wrists' height at `stall_step` and the wrist travel (cm; left, right) the policy plans
+    there with the real state and with each shadow's."""
     real, shadows = scene(MIXED), {hands: scene(hands) for hands in SEEN}
-    travel: dict[str, list[np.ndarray]] = {"own": [], **{hands: [] for hands in SEEN}}
+    rows = []
     for seed in tqdm(range(EVAL_SEED, EVAL_SEED + episodes), desc="state at the stall", leave=False):
         obs, _ = real.reset(seed=seed)
         pilot.policy.reset()
@@ -137,10 +141,25 @@ def state_swap(pilot: Pilot, episodes: int, stall_step: int) -> dict[str, list[f
         for hands, shadow in shadows.items():
             shadow.reset(seed=seed)
             states[hands] = (pose_like(shadow, real)["agent_pos"], hands, wrists(shadow))
+        travel = {}
         for source, (state, hands, at) in states.items():
             plans = [pilot.chunk(state, hands, obs["pointcloud"], k)[-1, at] - state[at] for k in range(3)]
-            travel[source].append(np.mean([np.linalg.norm(p.reshape(2, 3), axis=1) for p in plans], axis=0))
-    return {source: (100 * np.mean(rows, axis=0)).round(2).tolist() for source, rows in travel.items()}
+            travel[source] = (
+                100 * np.mean([np.linalg.norm(p.reshape(2, 3), axis=1) for p in plans], 0)
+            ).round(2)
+        height = 100 * obs["agent_pos"][wrists(real)].reshape(2, 3)[:, 2]
+        rows.append({
+            "seed": seed, "wrist_z_cm": height.round(1).tolist(), "stalled": bool(height.min() > STALLED_CM),
+            "travel_cm": {k: v.tolist() for k, v in travel.items()},
+        })  # fmt: skip
+    return rows
+
+
+def mean_travel(rows: list[dict]) -> dict[str, list[float]]:
+    return {
+        source: np.mean([row["travel_cm"][source] for row in rows], axis=0).round(2).tolist()
+        for source in rows[0]["travel_cm"]
+    } if rows else {}  # fmt: skip
 
 
 def plot(report: dict, path: Path) -> None:
@@ -150,11 +169,12 @@ def plot(report: dict, path: Path) -> None:
     left.set(xticks=range(len(swap)), ylabel="success (%)", ylim=(0, 100),
              title=f"{MIXED} in closed loop, fed the cloud of ...")  # fmt: skip
     left.set_xticklabels([f"{k}\n{v}/{report['episodes']}" for k, v in swap.items()])
-    travel = report["state_swap_travel_cm"]
+    travel = report["state_swap_travel_cm_stalled"] or report["state_swap_travel_cm"]
     for i, (lt, rt) in enumerate(travel.values()):
         right.bar([3 * i, 3 * i + 1], [lt, rt], color=["tab:green", "tab:purple"])
+    title = f"step {report['stall_step']}, {report['stalled_episodes']} stalled: the state of ..."
     right.set(xticks=[3 * i + 0.5 for i in range(len(travel))], ylabel="planned wrist travel per chunk (cm)",
-              title=f"at step {report['stall_step']}, the real cloud and the state of ...")  # fmt: skip
+              title=title)  # fmt: skip
     right.set_xticklabels(list(travel))
     right.legend(handles=[plt.Rectangle((0, 0), 1, 1, color=c) for c in ("tab:green", "tab:purple")],
                  labels=["left wrist", "right wrist"])  # fmt: skip
@@ -181,8 +201,12 @@ def main() -> None:
         "episodes": args.episodes,
         "stall_step": args.stall_step,
         "cloud_swap_successes": cloud_swap(pilot, args.episodes),
-        "state_swap_travel_cm": state_swap(pilot, args.episodes, args.stall_step),
     }
+    rows = state_swap(pilot, args.episodes, args.stall_step)
+    report["state_swap_travel_cm"] = mean_travel(rows)
+    report["state_swap_travel_cm_stalled"] = mean_travel([row for row in rows if row["stalled"]])
+    report["stalled_episodes"] = sum(row["stalled"] for row in rows)
+    report["state_swap_episodes"] = rows
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / f"{args.name}.json").write_text(json.dumps(report, indent=2) + "\n")
     plot(report, RESULTS / f"{args.name}.png")
