@@ -83,8 +83,9 @@ def record(out: Path, row: dict) -> list[dict]:
     return runs
 
 
-def plot(runs: list[dict], path: Path) -> None:
-    """One bar per run: its success on the pair it was evaluated on, grouped by what it trained on."""
+def plot(runs: list[dict], path: Path, trained_with: list[str] | tuple[str, ...] = ()) -> None:
+    """One bar per run: its success on the pair it was evaluated on, grouped by what it trained on;
+    `trained_with`: the extra training flags of (b), named in the title."""
     fig, ax = plt.subplots(figsize=(12, 5.4))
     labels = []
     for i, run in enumerate(runs):
@@ -97,8 +98,9 @@ def plot(runs: list[dict], path: Path) -> None:
         labels.append(
             f"{'+'.join(run['hands'])}\n{run['action_space']}\n{run['deploy']}\ntrained on\n{trained}"
         )
+    flags = f" (trained with {' '.join(trained_with)})" if trained_with else ""
     ax.set(xticks=range(len(runs)), ylabel="success (%)", ylim=(0, 110),
-           title=f"{TASK}, {REGION}: hatched = a pair of hands the policy never saw")  # fmt: skip
+           title=f"{TASK}, {REGION}{flags}: hatched = a pair of hands the policy never saw")  # fmt: skip
     ax.set_xticklabels(labels, fontsize=7)
     ax.axhline(80, color="grey", lw=0.8, ls=":")
     fig.tight_layout()
@@ -126,7 +128,7 @@ def main() -> None:
     workspace = Workspace(args.work, scale, args.galr, threads=1)
     out, picture = args.results / f"{args.name}.json", args.results / f"{args.name}.png"
     for row in rig_rows(args.results, args.rig) if args.rig else []:
-        plot(record(out, row), picture)
+        plot(record(out, row), picture, args.policy_arg)
     for training, hands in cells(args.demos, args.conditions.split(",")):
         result = workspace.evaluate(Evaluation(training, TASK, hands, (REGION,)))
         row = {
@@ -141,7 +143,7 @@ def main() -> None:
         print(
             json.dumps(row), f"(commit {result['commit']}, training {result['training_commit']})", flush=True
         )
-        plot(record(out, row), picture)
+        plot(record(out, row), picture, args.policy_arg)
 
 
 if __name__ == "__main__":

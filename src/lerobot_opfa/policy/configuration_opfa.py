@@ -113,7 +113,8 @@ class OpfaConfig(PreTrainedConfig):
     cameras alone. Off, `galr` on `pull_drawer` in `mid_center` succeeded 50, 49 and 50 of 50 times
     (Allegro, SVH, LEAP) against 37, 25 and 38 with it on and no `state_hand_noise`, but SVH `lift` 32
     against 50; without `decoded_state`, LEAP in `far_left` succeeded 230/250 over five training seeds,
-    against 191/250 (docs/results.md)."""
+    against 191/250. Two hands: co-trained on (Inspire, Inspire) and (XHand, XHand), off, the unseen pair
+    (Inspire, XHand) succeeded 30/50 against 6/50 (docs/results.md)."""
     state_hand_noise: float | None = None
     """Standard deviation of the Gaussian noise added in training to the hand's part of the normalised state;
     unset, the action space's (`galr` 0.05, `raw` and `per_embodiment` 0). A deployed `galr` hand holds the
