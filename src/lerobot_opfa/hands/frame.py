@@ -34,7 +34,8 @@ CLEAR = 0.3
 PALM_CLEAR = 0.2
 """Share of the flexion ranges' reach that must agree on one side for the palm to be told."""
 THUMB_CLEAR = 0.005
-"""Metres the thumb's root must lie off the other fingers' roots, across the palm, to tell the hand."""
+"""Metres the root of the finger that tells the hand (the thumb, or a centred thumb's index) must lie off
+the other fingers' roots' centre, across the palm."""
 THUMB_OFF_CENTRE = 0.35
 """Share of the other fingers' half-width across the palm that the thumb's root must lie off their centre
 to tell the hand; nearer the centre, the first finger after the thumb tells it."""
