@@ -16,7 +16,13 @@ import mujoco
 import numpy as np
 
 from lerobot_opfa.datasets.joint_map import HANDS_SEPARATOR, SIDES, JointMap, arm_entries
-from lerobot_opfa.envs.env import POINTCLOUD_SOURCES, OpfaSimEnv, check_choice, parse_cameras
+from lerobot_opfa.envs.env import (
+    POINTCLOUD_SOURCES,
+    OpfaSimEnv,
+    check_choice,
+    observation_spaces,
+    parse_cameras,
+)
 from lerobot_opfa.envs.experts import ScriptedExpert
 from lerobot_opfa.envs.observation import SceneViews
 from lerobot_opfa.envs.regions import REGIONS, parse_regions
@@ -228,12 +234,7 @@ class OpfaBimanualEnv(gym.Env):
             low += [*WRIST_RANGE[:, 0], *hand.lower.double().cpu().numpy()]
             high += [*WRIST_RANGE[:, 1], *hand.upper.double().cpu().numpy()]
         self.action_space = gym.spaces.Box(np.float32(low), np.float32(high), dtype=np.float32)
-        spaces = {"agent_pos": gym.spaces.Box(-np.inf, np.inf, (len(low),), np.float64)}
-        if "pointcloud" in self.obs_type:
-            spaces["pointcloud"] = gym.spaces.Box(-np.inf, np.inf, (n_points * 3,), np.float32)
-        if "state" in self.obs_type:
-            spaces["environment_state"] = gym.spaces.Box(-np.inf, np.inf, (ENV_STATE_DIM,), np.float64)
-        self.observation_space = gym.spaces.Dict(spaces)
+        self.observation_space = gym.spaces.Dict(observation_spaces(self.obs_type, len(low), n_points))
         self.views = SceneViews(model, pointcloud_source, n_points, self.depth_cameras, self.render_size)
         self.placement: Placement | None = None
         self.region: str | None = None

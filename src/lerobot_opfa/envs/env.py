@@ -43,6 +43,17 @@ def parse_cameras(cameras: str | list[str]) -> list[str]:
     return [check_choice("depth camera", name, list(DEPTH_CAMERAS)) for name in names]
 
 
+def observation_spaces(obs_type: str, state_width: int, n_points: int) -> dict[str, gym.spaces.Box]:
+    """The numeric observations both scenes give: `agent_pos`, and by `obs_type` the point cloud and the
+    task's object state."""
+    spaces = {"agent_pos": gym.spaces.Box(-np.inf, np.inf, (state_width,), np.float64)}
+    if "pointcloud" in obs_type:
+        spaces["pointcloud"] = gym.spaces.Box(-np.inf, np.inf, (n_points * 3,), np.float32)
+    if "state" in obs_type:
+        spaces["environment_state"] = gym.spaces.Box(-np.inf, np.inf, (ENV_STATE_DIM,), np.float64)
+    return spaces
+
+
 class OpfaSimEnv(gym.Env):
     """A table-top task for any registered hand on a floating wrist.
 
@@ -108,11 +119,7 @@ class OpfaSimEnv(gym.Env):
         self.target_space = gym.spaces.Box(low.astype(np.float32), high.astype(np.float32), dtype=np.float32)
         """The wrist's and the hand's targets (what `joints` control takes)."""
         self.action_space = self.target_space if self.ee is None else self.ee.action_space
-        spaces = {"agent_pos": gym.spaces.Box(-np.inf, np.inf, (len(self.state_names),), np.float64)}
-        if "pointcloud" in self.obs_type:
-            spaces["pointcloud"] = gym.spaces.Box(-np.inf, np.inf, (n_points * 3,), np.float32)
-        if "state" in self.obs_type:
-            spaces["environment_state"] = gym.spaces.Box(-np.inf, np.inf, (ENV_STATE_DIM,), np.float64)
+        spaces = observation_spaces(self.obs_type, len(self.state_names), n_points)
         if "rgb" in self.obs_type:
             picture = gym.spaces.Box(0, 255, (*self.camera_size, 3), np.uint8)
             spaces["pixels"] = gym.spaces.Dict({f"{c}_rgb": picture for c in self.rgb_cameras})
