@@ -3,9 +3,10 @@ checkpoints, resume, logging, wandb, accelerate) on the dataset held in memory.
 
 LeRobot's `make_train_eval_datasets` is swapped, for this call only, for one that wraps the LeRobotDatasets
 it makes in `InMemoryDataset`; everything else is LeRobot's code, including its episode-aware sampler. The
-swap, and two more (`draccus.parse`, to show a config error's cause; `sys.argv`, which LeRobot reads itself),
-are `mock.patch` because LeRobot 0.6.1 offers no seam for them: `train` says why beside each. The
-process also keeps freed memory for reuse (glibc), which spares the update step its page faults.
+swap, and one more (`sys.argv`, which LeRobot reads itself), are `mock.patch` because LeRobot 0.6.1 offers
+no seam for them: `train` says why beside each. The config is parsed here and handed to LeRobot's
+`train(cfg)` (`parser.wrap` takes a parsed config), so that a flag's error shows its cause. The process
+also keeps freed memory for reuse (glibc), which spares the update step its page faults.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import platform
 import sys
 import time
 from pathlib import Path
-from unittest import mock  # for three pieces of LeRobot 0.6.1 that offer no seam: see `train` below
+from unittest import mock  # for two pieces of LeRobot 0.6.1 that offer no seam: see `train` below
 
 HELP = (
     "lerobot-train with the dataset held in memory: same flags (see lerobot-train --help), numeric datasets"
@@ -47,10 +48,10 @@ def train(argv: list[str]) -> None:
     2-core machine 2 threads train 1.4x faster than 1, but torch's OpenMP threads spin while they wait, so
     where other busy processes share the cores set OMP_NUM_THREADS=1 (2 threads there ran 10-20x
     slower). See benchmarks/bench_training.py."""
-    import draccus
     import torch
     from huggingface_hub import constants
     from lerobot.scripts import lerobot_train
+    from lerobot.utils.import_utils import register_third_party_plugins
 
     from lerobot_opfa.datasets.io import check_dataset_folder
 
@@ -69,22 +70,51 @@ def train(argv: list[str]) -> None:
         torch.set_num_threads(len(usable))
     _reuse_freed_memory()
     make = _in_memory(lerobot_train.make_train_eval_datasets)
-    # Three pieces of LeRobot 0.6.1 are swapped for this call only. LeRobot has no seam for any of them:
+    # Two pieces of LeRobot 0.6.1 are swapped for this call only. LeRobot has no seam for either:
     with (
         # No seam for the dataset: `train(cfg)` calls the module's `make_train_eval_datasets` by name, takes
         # no dataset or factory, and datasets have no registry (`DatasetConfig` is a plain dataclass).
         mock.patch.object(lerobot_train, "make_train_eval_datasets", make),
-        # No seam for parse errors: `parser.wrap()` calls `draccus.parse` itself and prints what it raises.
-        # For a `--policy.*` value that is draccus's "Could not decode the value into any of the given
-        # types" with the cause on a second line, for another config's ValueError only "Couldn't
-        # instantiate ..."; `_parse_showing_cause` raises the cause, which `cli.main` prints as one line.
-        mock.patch.object(draccus, "parse", _parse_showing_cause(draccus.parse)),
-        # No seam for the arguments: `parser.wrap()` would take a parsed config, but
-        # `TrainPipelineConfig.validate()` reads `--policy.path` / `--reward_model.path` from `sys.argv`
-        # itself (`parser.get_path_arg`), as does the wrapper's plugin loading: there is no argv parameter.
+        # No seam for the arguments: `TrainPipelineConfig.validate()` reads `--policy.path` /
+        # `--reward_model.path` from `sys.argv` itself (`parser.get_path_arg`): there is no argv parameter.
         mock.patch.object(sys, "argv", ["lerobot-opfa train", *argv]),
     ):
-        lerobot_train.main()
+        register_third_party_plugins()
+        if "--help" in argv or "-h" in argv:
+            lerobot_train.main()  # LeRobot's own help of its flags
+        else:
+            lerobot_train.train(_parse(argv))
+
+
+def _parse(argv: list[str]):
+    """lerobot-train's config from `argv`, parsed as `parser.wrap` parses it (plugins, `--config_path`,
+    the `.path` flags left for `validate`), with a flag's real error raised as one line: `wrap` prints
+    draccus's own, which for a `--policy.*` value is "Could not decode the value into any of the given
+    types" with the cause on a second line, and for another config's ValueError only "Couldn't
+    instantiate ..."."""
+    import draccus
+    from lerobot.configs import parser
+    from lerobot.configs.train import TrainPipelineConfig
+
+    args = list(argv)
+    for flag, plugin in parser.parse_plugin_args(parser.PLUGIN_DISCOVERY_SUFFIX, args).items():
+        parser.load_plugin(plugin)
+        args = parser.filter_arg(flag, args)
+    path_fields = TrainPipelineConfig.__get_path_fields__()
+    args = parser.filter_path_args(path_fields, args)
+    config_path = parser.parse_arg("config_path", args)
+    try:
+        if config_path:
+            config_path = parser.extract_path_fields_from_config(config_path, path_fields)
+            cli_args = parser.filter_arg("config_path", args)
+            return TrainPipelineConfig.from_pretrained(config_path, cli_args=cli_args)
+        return draccus.parse(config_class=TrainPipelineConfig, args=args, exit_on_error=False)
+    except draccus.utils.DraccusException as err:
+        cause = err
+        while isinstance(cause, draccus.utils.DraccusException) and (cause.__cause__ or cause.__context__):
+            cause = cause.__cause__ or cause.__context__
+        flag = ".".join(getattr(err, "field_path", ()) or ())
+        raise ValueError(f"--{flag}: {cause}" if flag else str(cause)) from None
 
 
 def _flag(argv: list[str], name: str) -> str | None:
@@ -171,27 +201,6 @@ def _check_resumable(checkpoints: Path, name: str, flag: str) -> None:
             f"{f', before {target} was made' if name == 'last' and not target.exists() else ''}); "
             f"{_how_to_go_on(checkpoints, incomplete)}"
         )
-
-
-def _parse_showing_cause(parse):
-    """draccus.parse, raising a flag's real error (a config's `__post_init__` message, or a `FlagError`'s
-    inside draccus's union message) as a ValueError of one line."""
-    import draccus
-
-    @functools.wraps(parse)
-    def parse_with_cause(*args, **kwargs):
-        try:
-            return parse(*args, **{**kwargs, "exit_on_error": False})
-        except draccus.utils.DraccusException as err:
-            cause = err
-            while isinstance(cause, draccus.utils.DraccusException) and (
-                cause.__cause__ or cause.__context__
-            ):
-                cause = cause.__cause__ or cause.__context__
-            flag = ".".join(getattr(err, "field_path", ()) or ())
-            raise ValueError(f"--{flag}: {cause}" if flag else str(cause)) from None
-
-    return parse_with_cause
 
 
 def _reuse_freed_memory() -> None:
