@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -75,19 +76,25 @@ STOCK = {
 }  # fmt: skip
 
 
-@pytest.mark.parametrize("policy", sorted(STOCK))
-def test_a_stock_policy_trains_in_galr_space_and_lerobot_eval_runs_it_on_each_hand(
-    latent, tmp_path, capsys, policy
-):
+@pytest.fixture(scope="module", params=sorted(STOCK))
+def trained(request, latent, tmp_path_factory) -> tuple[str, Path]:
+    """A stock policy trained 2 steps on the latent dataset: its type and checkpoint folder."""
+    policy, out = request.param, tmp_path_factory.mktemp(f"train_{request.param}") / "train"
     done = lerobot(
         "lerobot_train", f"--policy.type={policy}", "--policy.device=cpu", "--policy.push_to_hub=false",
         "--policy.pretrained_backbone_weights=null", *STOCK[policy], "--dataset.repo_id=local/latent",
         f"--dataset.root={latent}", "--steps=2", "--batch_size=2", "--save_freq=2", "--num_workers=0",
-        f"--output_dir={tmp_path / 'train'}", "--wandb.enable=false",
+        f"--output_dir={out}", "--wandb.enable=false",
     )  # fmt: skip
     assert done.returncode == 0, done.stderr[-3000:]
-    trained = tmp_path / "train" / "checkpoints" / "last" / "pretrained_model"
-    opfa("policy", "convert-io", "--policy", str(trained), "--output", str(tmp_path / "joints"))
+    return policy, out / "checkpoints" / "last" / "pretrained_model"
+
+
+def test_a_stock_policy_trains_in_galr_space_and_lerobot_eval_runs_it_on_each_hand(
+    latent, trained, tmp_path, capsys
+):
+    policy, checkpoint = trained
+    opfa("policy", "convert-io", "--policy", str(checkpoint), "--output", str(tmp_path / "joints"))
     assert "--env.policy_action_width=70" in capsys.readouterr().out  # body 6 + z 64
     steps = json.loads((tmp_path / "joints" / "policy_postprocessor.json").read_text())["steps"]
     assert [s["registry_name"] for s in steps][-3:-1] == ["opfa_unnormalize", "opfa_decode_joints"]
@@ -121,3 +128,32 @@ def interleaved_actions(checkpoint: Path, policy_type: str, recorded: Path) -> N
         with torch.no_grad():
             action = post(policy.select_action(pre({**observation, "observation.hand": hand})))
         assert action.shape == (1, len(frames[hand]["action"])), hand
+
+
+def test_a_policy_with_its_own_relative_action_step_is_refused_in_one_line(trained, tmp_path, capsys):
+    """pi0, pi05, pi0_fast and groot put a relative-action step before their normaliser, as here; LeRobot
+    would pair opfa's decode step with it once reloaded."""
+    from lerobot.policies.factory import make_pre_post_processors
+    from lerobot.processor.relative_action_processor import (
+        AbsoluteActionsProcessorStep,
+        RelativeActionsProcessorStep,
+    )
+
+    import lerobot_policy_opfa  # noqa: F401  (registers the steps, as LeRobot's CLIs load it)
+    from lerobot_opfa.policy.deploy import checkpoint_config
+
+    policy, checkpoint = trained
+    pi0_style = tmp_path / "pi0_style"
+    shutil.copytree(checkpoint, pi0_style)
+    pre, post = make_pre_post_processors(checkpoint_config(checkpoint), pretrained_path=str(checkpoint))
+    relative = RelativeActionsProcessorStep(enabled=False)
+    pre.steps.insert([type(s).__name__ for s in pre.steps].index("NormalizerProcessorStep"), relative)
+    post.steps.insert(1, AbsoluteActionsProcessorStep(enabled=False, relative_step=relative))
+    pre.save_pretrained(pi0_style)
+    post.save_pretrained(pi0_style)
+    assert (
+        cli.main(["policy", "convert-io", "--policy", str(pi0_style), "--output", str(tmp_path / "o")]) != 0
+    )
+    err = capsys.readouterr().err.strip()
+    assert f"{policy}'s preprocessor has its own relative-action step" in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "o").exists()

@@ -33,6 +33,7 @@ from lerobot.processor.converters import (
     transition_to_batch,
     transition_to_policy_action,
 )
+from lerobot.processor.relative_action_processor import RelativeActionsProcessorStep
 from lerobot.utils.constants import ACTION, OBS_STATE
 
 from lerobot_opfa.datasets.io import (
@@ -170,6 +171,13 @@ def convert_checkpoint(
     pre, post = make_pre_post_processors(config, pretrained_path=str(policy_dir))
     if any(isinstance(s, OpfaEncodeJointsStep) for s in pre.steps):
         raise ValueError(f"{policy_dir} already takes and gives joints (it was converted)")
+    own = next((s for s in pre.steps if isinstance(s, RelativeActionsProcessorStep)), None)
+    if own is not None:
+        raise ValueError(
+            f"{policy_dir}: {config.type}'s preprocessor has its own relative-action step "
+            f"({type(own).__name__}), and a loaded postprocessor is paired with the first such step, so "
+            f"opfa's joint steps cannot sit beside it; convert-io takes policies without one (act, diffusion)"
+        )
     pre_names = [type(s).__name__ for s in pre.steps]
     post_names = [type(s).__name__ for s in post.steps]
     if "NormalizerProcessorStep" not in pre_names or "UnnormalizerProcessorStep" not in post_names:
