@@ -159,6 +159,28 @@ def test_a_checkpoint_trained_on_the_rigs_depth_deploys_with_lerobot_rollout(rec
     last = done.stderr.strip().splitlines()[-1]
     assert "the 'umi' robot this policy was trained on has 7" in last and "12 entries" in last, last
     assert last.startswith("error: ") and "Traceback" not in done.stderr, done.stderr[-3000:]
+    # The 2F-85 has umi's width (one joint): its robot_type tells it apart, and the user's word accepts it.
+    done = lerobot("lerobot_rollout", *rig_flags(tmp_path / "gripper", "robotiq_2f85"), *flags)
+    last = done.stderr.strip().splitlines()[-1]
+    assert done.returncode != 0 and last.startswith("error: this policy drives 'umi'"), done.stderr[-3000:]
+    assert "robot_type 'robotiq_2f85'" in last and "Traceback" not in done.stderr, last
+    accepted = tmp_path / "accepted"
+    pin = [
+        "policy",
+        "for-robot",
+        "--policy",
+        str(checkpoint),
+        "--hand",
+        "umi",
+        "--robot-type",
+        "robotiq_2f85",
+    ]
+    assert cli.main([*pin, "--output", str(accepted)]) == 0
+    done = lerobot(
+        "lerobot_rollout", *rig_flags(tmp_path / "gripper", "robotiq_2f85"), f"--policy.path={accepted}",
+        *flags[1:],
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-3000:]
 
 
 def test_an_episode_shorter_than_the_tasks_step_budget_is_reported_and_late_success_does_not_count(

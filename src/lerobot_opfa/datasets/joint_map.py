@@ -44,6 +44,7 @@ import difflib
 import logging
 import math
 import re
+from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -487,7 +488,12 @@ def _mapped_joint(value, where: str) -> MappedJoint:
     return MappedJoint(value["joint"], scale, offset)
 
 
-def hands_named_in(robot_type: str | None) -> list[str]:
-    """The built-in hands a dataset's `robot_type` names: all of it, or words of it (`arm_inspire`)."""
+def hands_named_in(robot_type: str | None, hands: Iterable[str] | None = None) -> list[str]:
+    """The hands (`hands`, else the built-ins) a `robot_type` names: all of it, or words of it
+    (`arm_inspire`, `inspire+xhand`)."""
     text = (robot_type or "").lower()
-    return [h for h in builtin_hands() if re.search(rf"(?<![a-z0-9]){re.escape(h)}(?![a-z0-9])", text)]
+    return [
+        h
+        for h in (builtin_hands() if hands is None else hands)
+        if re.search(rf"(?<![a-z0-9]){re.escape(h.lower())}(?![a-z0-9])", text)
+    ]

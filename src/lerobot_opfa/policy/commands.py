@@ -44,6 +44,10 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         required=True,
         help="the robot's hand, one the policy was trained on (two arms: inspire+xhand)",
     )
+    pin.add_argument(
+        "--robot-type",
+        help="a robot_type that names other hands, of a robot that carries --hand's (refused otherwise)",
+    )
     pin.add_argument("--output", type=Path, required=True)
     pin.set_defaults(func=_pin)
 
@@ -69,5 +73,6 @@ def _convert(args: argparse.Namespace) -> None:
 def _pin(args: argparse.Namespace) -> None:
     from lerobot_opfa.policy.deploy import pin_robot
 
-    out = pin_robot(args.policy, args.hand, args.output)
-    print(f"wrote {out}: the policy of {args.policy}, reading every frame as hand '{args.hand}'s robot")
+    out = pin_robot(args.policy, args.hand, args.output, args.robot_type)
+    also = f", robot_type '{args.robot_type}' too" if args.robot_type else ""
+    print(f"wrote {out}: the policy of {args.policy}, reading every frame as hand '{args.hand}'s robot{also}")

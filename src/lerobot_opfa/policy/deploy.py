@@ -1,10 +1,10 @@
-"""`lerobot-opfa policy for-robot`: a copy of a checkpoint of several robots that drives one of them.
+"""`lerobot-opfa policy for-robot`: a copy of a checkpoint of several robots that drives one of them, or
+of a checkpoint that drives a robot whose `robot_type` names other hands, by the user's word.
 
-A frame says which robot it comes from (`joint_steps`), but a robot's frames in `lerobot-rollout` cannot:
-LeRobot 0.6.1 passes `robot_type` with each observation and its converter (`batch_to_transition`) drops
-it before the preprocessor, and `lerobot-rollout` takes no processor overrides. So the checkpoint itself
-names the robot: its encode step's `hand`, saved with it. Nothing is guessed from a state's width, which
-two hands can share.
+A frame says which robot it comes from (`joint_steps`); a robot's frames in `lerobot-rollout` say it by
+their `robot_type` (`robot_type.py`), where it names the robot's hands. Where it does not (a robot named
+`so101_follower`), the checkpoint itself names the robot: its encode step's `hand`, saved with it. Nothing
+is guessed from a state's width, which two hands can share.
 """
 
 from __future__ import annotations
@@ -40,8 +40,9 @@ def write_copy(policy_dir: Path, output: Path | str, *pipelines: PolicyProcessor
     return Path(output)
 
 
-def pin_robot(policy_dir: Path | str, hand: str, output: Path | str) -> Path:
-    """Copies the checkpoint folder `policy_dir` to `output` with its frames read as `hand`'s robot."""
+def pin_robot(policy_dir: Path | str, hand: str, output: Path | str, robot_type: str | None = None) -> Path:
+    """Copies the checkpoint folder `policy_dir` to `output` with its frames read as `hand`'s robot, also
+    where the robot's `robot_type` names other hands than `hand`'s."""
     policy_dir = Path(policy_dir)
     pre, _ = make_pre_post_processors(checkpoint_config(policy_dir), pretrained_path=str(policy_dir))
     encode = next((s for s in pre.steps if isinstance(s, OpfaEncodeJointsStep)), None)
@@ -50,5 +51,5 @@ def pin_robot(policy_dir: Path | str, hand: str, output: Path | str) -> Path:
             f"{policy_dir} does not map joints (a stock policy before `policy convert-io`): nothing to pin"
         )
     encode.robot_slots(hand)  # one of its robots, or a one-line error naming them
-    encode.hand = hand
+    encode.hand, encode.accept_robot_type = hand, robot_type
     return write_copy(policy_dir, output, pre)

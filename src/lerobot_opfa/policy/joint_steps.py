@@ -36,7 +36,7 @@ from lerobot.processor.relative_action_processor import (
 )
 from lerobot.utils.constants import ACTION, OBS_STATE
 
-from lerobot_opfa.datasets.joint_map import HANDS_SEPARATOR, JointMap, arm_entries
+from lerobot_opfa.datasets.joint_map import HANDS_SEPARATOR, JointMap, arm_entries, hands_named_in
 from lerobot_opfa.features import OBS_EMBODIMENT, OBS_HAND, OBS_POINTCLOUD, frame_embodiments
 from lerobot_opfa.galr.frozen import encode_joints, encode_universal, relocate_hand
 from lerobot_opfa.galr.model import Galr
@@ -46,6 +46,7 @@ from lerobot_opfa.hands.registry import builtin_hands, load_hand, load_spec
 from lerobot_opfa.hands.universal import UNIVERSAL_JOINT_NAMES
 from lerobot_opfa.policy.action_spaces import ACTION_SPACES, ActionSpace
 from lerobot_opfa.policy.latent_cache import LatentCache
+from lerobot_opfa.policy.robot_type import ROBOT_TYPE
 
 LOAD_PAIRED = "load the two with lerobot's make_pre_post_processors(..., pretrained_path=...): it pairs them"
 """How a postprocessor gets its preprocessor's encode step, the one it reads the robot from."""
@@ -332,6 +333,9 @@ class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
     """The robot this pipeline drives when its frames do not say: a policy of several robots deployed
     with `lerobot-rollout` (`policy for-robot` saves it). Frames that say, and one-robot policies, need
     none."""
+    accept_robot_type: str | None = None
+    """A `robot_type` this pipeline drives its robot for though it names other hands: the user's word that
+    the robot carries the trained hands (`policy for-robot --robot-type`)."""
     native_joint_names: list[str] = field(default_factory=list)
     """A step saved before `joint_maps`: the column order of `hand`'s joints (read, not saved)."""
     use_cached_latents: bool = False
@@ -368,7 +372,10 @@ class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
             def convert(x, key):
                 return self._from_universal(x, ids, key, live)
         else:
-            robot = self.robot_slots(hand)
+            robot_type = (
+                (new.get(TransitionKey.COMPLEMENTARY_DATA) or {}).get(ROBOT_TYPE) if hand is None else None
+            )
+            robot = self.robot_slots(hand, robot_type)
             ids = torch.tensor(robot, device=state.device).expand(len(state), -1)
 
             def convert(x, key):
@@ -382,14 +389,19 @@ class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
         new[TransitionKey.OBSERVATION] = obs
         return new
 
-    def robot_slots(self, hand: str | None) -> tuple[int, ...]:
+    def robot_slots(self, hand: str | None, robot_type: str | None = None) -> tuple[int, ...]:
         """The embodiment of each slot of the robot of frames from the simulator of `hand` (`inspire`, or
-        `inspire+xhand` for two arms), or (None) of the robot the pipeline drives."""
+        `inspire+xhand` for two arms), or (None) of the robot the pipeline drives: the one it is pinned to,
+        its one robot, or the one a deployed robot's `robot_type` names (`robot_type.py`); a `robot_type`
+        that names other hands than that robot's is refused (`accept_robot_type` overrides)."""
         name = hand or self.hand
         names = [self.robot_name(robot) for robot in self.robots]
         if name is None:
-            if len(self.robots) == 1:
-                return tuple(self.robots[0])
+            typed = self._robots_of_type(robot_type)
+            if len(self.robots) == 1 or len(typed) == 1:
+                robot = tuple(self.robots[0]) if len(self.robots) == 1 else typed[0]
+                self._check_robot_type(robot, robot_type)
+                return robot
             raise ValueError(
                 f"this policy drives several robots ({', '.join(names)}) and the frames do not "
                 "say which: add observation.embodiment or observation.hand to them, or give the pipeline its "
@@ -401,7 +413,41 @@ class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
                 f"this policy drives {', '.join(names)}; it cannot drive hand '{name}' (a policy acts for "
                 "the robots it was trained on, and in the simulator for other pairs of their hands)"
             )
-        return tuple(self.embodiments.index(h) for h in hands)
+        robot = tuple(self.embodiments.index(h) for h in hands)
+        if hand is None:
+            self._check_robot_type(robot, robot_type)
+        return robot
+
+    def _robots_of_type(self, robot_type: str | None) -> list[tuple[int, ...]]:
+        """The trained robots a deployed robot's `robot_type` says it is."""
+        return [
+            tuple(robot) for robot in self.robots if robot_type and self._is_of_type(tuple(robot), robot_type)
+        ]
+
+    def _is_of_type(self, robot: tuple[int, ...], robot_type: str) -> bool:
+        """Whether `robot_type` is `robot`'s: its name, the robot_type its joint map confirms, or a name
+        that says exactly its hands (`arm_inspire`)."""
+        named = set(hands_named_in(robot_type, {*builtin_hands(), *self.embodiments}))
+        confirmed = self.maps[robot].robot_type if robot in self.maps else None
+        return robot_type in (self.robot_name(robot), confirmed) or named == {
+            self.embodiments[e] for e in robot
+        }
+
+    def _check_robot_type(self, robot: tuple[int, ...], robot_type: str | None) -> None:
+        """A deployed robot whose `robot_type` names other hands than `robot`'s is refused: its joints would
+        be read as another hand's without a word (a gripper's jaw in metres as another's knuckle in
+        radians). A robot_type that names no hand (`so101_follower`) says nothing either way."""
+        if not robot_type or robot_type == self.accept_robot_type or self._is_of_type(robot, robot_type):
+            return
+        named = hands_named_in(robot_type, {*builtin_hands(), *self.embodiments})
+        if named:
+            mine = self.robot_name(robot)
+            raise ValueError(
+                f"this policy drives '{mine}', but the robot's robot_type '{robot_type}' names hand(s) "
+                f"{', '.join(sorted(named))}: its joints would be read as '{mine}''s; deploy a policy "
+                f"trained on its hand, or if the robot does carry '{mine}', say so: `lerobot-opfa policy "
+                f"for-robot --policy CHECKPOINT --hand {mine} --robot-type {robot_type} --output OUT`"
+            )
 
     def _from_robot(
         self, x: torch.Tensor, robot: tuple[int, ...], key: str, simulator: bool, live: bool
@@ -461,6 +507,8 @@ class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
 
     def get_config(self) -> dict[str, Any]:
         pinned = {} if self.hand is None else {"hand": self.hand}
+        if self.accept_robot_type is not None:
+            pinned["accept_robot_type"] = self.accept_robot_type
         flags = {
             "use_cached_latents": self.use_cached_latents,
             "record_for_decode": self.record_for_decode,
