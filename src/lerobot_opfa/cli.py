@@ -11,6 +11,7 @@ from draccus.utils import DecodingError
 
 from lerobot_opfa import demo, train
 from lerobot_opfa.datasets import commands as dataset_commands
+from lerobot_opfa.envs import choose_headless_gl
 from lerobot_opfa.envs import commands as sim_commands
 from lerobot_opfa.experiments import commands as experiment_commands
 from lerobot_opfa.flags import OneLineParser
@@ -49,6 +50,7 @@ class _ShortVideoBackendWarning(logging.Filter):
 
 
 def main(argv: list[str] | None = None) -> int:
+    choose_headless_gl()
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     logging.getLogger("lerobot_opfa").setLevel(logging.INFO)
     logging.getLogger("lerobot.utils.import_utils").addFilter(_ShortVideoBackendWarning())

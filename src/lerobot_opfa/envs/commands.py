@@ -70,11 +70,8 @@ def _demos(args: argparse.Namespace) -> int:
 
 
 def _show(args: argparse.Namespace) -> int:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     import numpy as np
+    from matplotlib.figure import Figure
 
     from lerobot_opfa.envs.env import OpfaSimEnv
     from lerobot_opfa.envs.experts import ScriptedExpert
@@ -88,7 +85,7 @@ def _show(args: argparse.Namespace) -> int:
         depth_cameras="front,left,right",
     )
     obs, info = env.reset(seed=args.seed)
-    fig = plt.figure(figsize=(11, 4.5))
+    fig = Figure(figsize=(11, 4.5))
     ax = fig.add_subplot(1, 2, 1)
     ax.imshow(env.render())
     ax.set_title(f"{args.task} / {env.hand_model.name} / {info['region']}")

@@ -80,16 +80,14 @@ def _rate_text(wins: int, n: int) -> str:
 
 def plot(rows: list[dict], out: Path, title: str, curve: bool = False) -> Path:
     """Bars per (group, hand) and condition; with `curve`, success against the numeric group instead."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     import numpy as np
+    from matplotlib.figure import Figure
 
     inside = {(r["group"], r["hand"], r["condition"]): r for r in rows if r["kind"] == IN_DISTRIBUTION}
     rows = [r for r in rows if r["kind"] == TRANSFER]
     conditions = [c for c in CONDITION_LABELS if any(r["condition"] == c for r in rows)]
-    fig, ax = plt.subplots(figsize=(max(6.0, 0.9 * len(rows) / max(1, len(conditions)) + 3), 4))
+    fig = Figure(figsize=(max(6.0, 0.9 * len(rows) / max(1, len(conditions)) + 3), 4))
+    ax = fig.subplots()
     if curve:
         for condition in conditions:
             mine = sorted((r for r in rows if r["condition"] == condition), key=lambda r: float(r["group"]))
@@ -123,7 +121,6 @@ def plot(rows: list[dict], out: Path, title: str, curve: bool = False) -> Path:
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.tight_layout()
     fig.savefig(out, dpi=110)
-    plt.close(fig)
     return out
 
 

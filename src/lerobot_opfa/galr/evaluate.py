@@ -8,15 +8,12 @@ import math
 import time
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+import torch
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import torch  # noqa: E402
-
-from lerobot_opfa.galr.model import PRISMATIC_SCALE, Galr, joint_scale  # noqa: E402
-from lerobot_opfa.hands.plot import plot_clouds  # noqa: E402
+from lerobot_opfa.galr.model import PRISMATIC_SCALE, Galr, joint_scale
+from lerobot_opfa.hands.plot import plot_clouds
 
 
 def held_out_joints(galr: Galr, hand: str, n: int, seed: int) -> torch.Tensor:
@@ -73,7 +70,8 @@ def evaluate(galr: Galr, hands: list[str], states: int, seed: int, out: Path | N
 
 def plot_errors(report: dict, out: Path) -> Path:
     hands = list(report["hands"])
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4))
+    fig = Figure(figsize=(12, 4))
+    axes = fig.subplots(1, 2)
     for ax, key, label in zip(
         axes,
         ("joint_rmse_deg", "fingertip_error_mm"),
@@ -90,7 +88,6 @@ def plot_errors(report: dict, out: Path) -> Path:
     fig.tight_layout()
     Path(out).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110)
-    plt.close(fig)
     return Path(out)
 
 
@@ -112,7 +109,8 @@ def plot_reconstructions(galr: Galr, hands: list[str], out: Path, seed: int = 0,
 
 def plot_training_curves(runs: dict[str, Path], out: Path) -> Path:
     """Validation RMSE against wall-clock training time for each run's `metrics.jsonl`."""
-    fig, ax = plt.subplots(figsize=(7, 4.5))
+    fig = Figure(figsize=(7, 4.5))
+    ax = fig.subplots()
     for label, run in runs.items():
         metrics = Path(run) / "metrics.jsonl"
         if not metrics.is_file():
@@ -129,5 +127,4 @@ def plot_training_curves(runs: dict[str, Path], out: Path) -> Path:
     fig.tight_layout()
     Path(out).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110)
-    plt.close(fig)
     return Path(out)

@@ -4,13 +4,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from lerobot_opfa.hands.universal import FINGERS  # noqa: E402
+from lerobot_opfa.hands.universal import FINGERS
 
 FINGER_COLOURS = ("#7f7f7f", "#d62728", "#1f77b4", "#2ca02c", "#ff7f0e", "#9467bd")
 VIEWS = (("front (palm side)", 0, 90), ("side (thumb side)", 0, 180))
@@ -18,7 +15,7 @@ VIEWS = (("front (palm side)", 0, 90), ("side (thumb side)", 0, 180))
 
 def plot_clouds(clouds: dict[str, tuple[np.ndarray, np.ndarray]], out: str | Path, title: str = "") -> Path:
     """One row per named cloud ((N, 3) points, (N, 2) labels), one column per viewpoint; saves a PNG."""
-    fig = plt.figure(figsize=(4.2 * len(VIEWS), 4.2 * len(clouds)))
+    fig = Figure(figsize=(4.2 * len(VIEWS), 4.2 * len(clouds)))
     every = np.concatenate([points for points, _ in clouds.values()])
     centre, half = (every.max(0) + every.min(0)) / 2, (every.max(0) - every.min(0)).max() / 2 + 1e-3
     for row, (name, (points, labels)) in enumerate(clouds.items()):
@@ -39,5 +36,4 @@ def plot_clouds(clouds: dict[str, tuple[np.ndarray, np.ndarray]], out: str | Pat
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110)
-    plt.close(fig)
     return out
