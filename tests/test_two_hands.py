@@ -397,3 +397,33 @@ def test_a_merge_with_a_galr_that_lacks_the_robots_hand_says_how_to_add_it(robot
     assert error.startswith("error: hand(s) ['dex3'] are not in the GaLR registry of ")
     assert error.endswith(f"add them with `lerobot-opfa galr pretrain --init {galr} --hands +dex3`")
     assert not (tmp_path / "out").exists(), "nothing written"
+
+
+def test_a_right_first_slot_map_reads_the_simulators_frames_as_its_recorded_robots():
+    """Slots are matched by side: a map that lists the right hand first reads the two-armed simulator's
+    frames (left arm first) as the frames of the robot it was recorded on, entry for entry."""
+    from lerobot_opfa.datasets.joint_map import arm_entries
+    from lerobot_opfa.hands.registry import load_spec
+
+    arms = {"left": load_spec("inspire"), "right": load_spec("xhand")}
+    names = arm_entries(arms, [f"body_{i}" for i in range(6)])  # the simulator's layout, left first
+    right_first = JointMap.named_after_arms({"right": arms["right"], "left": arms["left"]}, names, names)
+    assert [slot.side for slot in right_first.slots] == ["right", "left"]
+    step = OpfaEncodeJointsStep(
+        action_space="raw", embodiments=["inspire", "xhand"], hand_refs=["inspire", "xhand"], wrist_dim=12,
+        joint_maps=[right_first.to_dict()], robots=[[1, 0]],
+    )  # fmt: skip
+
+    def within_limits(hand: str) -> torch.Tensor:
+        model = load_hand(hand)
+        return model.lower + torch.rand(3, model.dof) * (model.upper - model.lower)
+
+    state = torch.cat(
+        [torch.rand(3, 6), within_limits("inspire"), torch.rand(3, 6), within_limits("xhand")], 1
+    )
+    recorded = step(batch_to_transition({OBS_STATE: state}))[TransitionKey.OBSERVATION]
+    simulated = step(batch_to_transition({OBS_STATE: state, "observation.hand": "inspire+xhand"}))
+    simulated = simulated[TransitionKey.OBSERVATION]
+    assert recorded[OBS_EMBODIMENT].tolist() == simulated[OBS_EMBODIMENT].tolist() == [[1, 0]] * 3
+    assert torch.equal(recorded[OBS_STATE], simulated[OBS_STATE])
+    assert step.robot_name((1, 0)) == "inspire+xhand"  # named left first, whatever the slots' order

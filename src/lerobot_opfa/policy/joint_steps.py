@@ -36,7 +36,7 @@ from lerobot.processor.relative_action_processor import (
 )
 from lerobot.utils.constants import ACTION, OBS_STATE
 
-from lerobot_opfa.datasets.joint_map import HANDS_SEPARATOR, JointMap, arm_entries, hands_named_in
+from lerobot_opfa.datasets.joint_map import HANDS_SEPARATOR, SIDES, JointMap, arm_entries, hands_named_in
 from lerobot_opfa.features import OBS_EMBODIMENT, OBS_HAND, OBS_POINTCLOUD, frame_embodiments
 from lerobot_opfa.galr.frozen import encode_joints, encode_universal, relocate_hand
 from lerobot_opfa.galr.model import Galr
@@ -154,9 +154,29 @@ class _HandSpace:
         }
         self._simulator_maps: dict[tuple[int, ...], JointMap] = {}
 
+    @property
+    def slot_sides(self) -> list[str | None]:
+        """The side of each of the policy's hand slots, in the policy's slot order (its robots' maps list
+        their slots in one order, left or right first)."""
+        first = self.joint_maps[0]
+        return [slot.get("side") for slot in first["slots"]] if "slots" in first else [first.get("side")]
+
     def robot_name(self, robot: tuple[int, ...] | list[int]) -> str:
-        """A robot by its slots' hands: `inspire`, or `inspire+xhand` for two (left first)."""
-        return HANDS_SEPARATOR.join(self.embodiments[e] for e in robot)
+        """A robot by its slots' hands: `inspire`, or `inspire+xhand` for two (left first, whatever the
+        slots' order)."""
+        by_side = sorted(
+            zip(self.slot_sides, robot, strict=True), key=lambda pair: SIDES.index(pair[0] or SIDES[0])
+        )
+        return HANDS_SEPARATOR.join(self.embodiments[e] for _, e in by_side)
+
+    def robot_named(self, name: str) -> tuple[int, ...]:
+        """The slot embodiments of the robot `name` names (`inspire`, or `inspire+xhand`: left first), in
+        the policy's slot order: slots are matched by side, never by position."""
+        hands = name.split(HANDS_SEPARATOR)
+        if len(hands) == 1:
+            return (self.embodiments.index(hands[0]),)
+        by_side = dict(zip(SIDES, hands, strict=True))
+        return tuple(self.embodiments.index(by_side[side]) for side in self.slot_sides)
 
     def _spec_order_map(self, ref: str, joint_names: list[str] | None = None) -> JointMap:
         spec = load_spec(ref)
@@ -184,10 +204,12 @@ class _HandSpace:
             if len(robot) == 1:
                 self._simulator_maps[robot] = self._spec_order_map(self.hand_refs[robot[0]])
             else:
-                trained = next(m for m in self.maps.values() if len(m.slots) == len(robot))
-                sides = [slot.side for slot in trained.slots]
-                arms = {side: load_spec(self.hand_refs[i]) for side, i in zip(sides, robot, strict=True)}
-                names = arm_entries(arms, [f"body_{i}" for i in range(self.wrist_dim // len(robot))])
+                # The simulator lays its arms out left first; the policy's slots keep their own order.
+                arms = {
+                    side: load_spec(self.hand_refs[i]) for side, i in zip(self.slot_sides, robot, strict=True)
+                }
+                body = [f"body_{i}" for i in range(self.wrist_dim // len(robot))]
+                names = arm_entries({side: arms[side] for side in SIDES}, body)
                 self._simulator_maps[robot] = JointMap.named_after_arms(arms, names, names)
         return self._simulator_maps[robot]
 
@@ -413,7 +435,7 @@ class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
                 f"this policy drives {', '.join(names)}; it cannot drive hand '{name}' (a policy acts for "
                 "the robots it was trained on, and in the simulator for other pairs of their hands)"
             )
-        robot = tuple(self.embodiments.index(h) for h in hands)
+        robot = self.robot_named(name)
         if hand is None:
             self._check_robot_type(robot, robot_type)
         return robot
