@@ -30,12 +30,15 @@ def test_a_refusal_of_this_package_is_one_line_and_anything_else_goes_to_the_pre
     assert seen == [ValueError, AttributeError] and capsys.readouterr().err == ""
 
 
-def test_the_traceback_is_kept_on_request(capsys, monkeypatch):
-    monkeypatch.setenv(command_errors.SHOW_TRACEBACK, "1")
+@pytest.mark.parametrize(
+    ("value", "kept"), [("1", True), ("True", True), ("yes", True), ("0", False), ("no", False)]
+)
+def test_the_traceback_is_kept_on_request(capsys, monkeypatch, value, kept):
+    monkeypatch.setenv(command_errors.SHOW_TRACEBACK, value)
     seen = []
     hook = command_errors.one_line_refusals(lambda *info: seen.append(info[0]))
     hook(*_raised(lambda: JointMap.from_dict({"hand": "umi"}, "a map")))
-    assert seen and capsys.readouterr().err == ""
+    assert bool(seen) is kept and capsys.readouterr().err.startswith("error: ") is not kept
 
 
 @pytest.mark.parametrize(

@@ -6,7 +6,7 @@ LeRobot's entry points catch only draccus's parse errors; a check of this packag
 would end a page of traceback. LeRobot offers no seam for it, Python does: `sys.excepthook`, which the plugin
 sets when one of LeRobot's command lines loads it. Only this package's own refusals are shortened (a
 `ValueError`, `FileNotFoundError` or `FileExistsError` raised by a function of the package); anything else,
-and everything with LEROBOT_OPFA_TRACEBACK=1, keeps Python's traceback."""
+and everything with LEROBOT_OPFA_TRACEBACK=1 (or true, yes), keeps Python's traceback."""
 
 from __future__ import annotations
 
@@ -18,6 +18,7 @@ from types import TracebackType
 
 REFUSALS = (ValueError, FileNotFoundError, FileExistsError)
 SHOW_TRACEBACK = "LEROBOT_OPFA_TRACEBACK"
+"""Set to 1, true or yes (any case) to keep the traceback; any other value, 0 included, leaves it off."""
 PACKAGES = ("lerobot_opfa", "lerobot_policy_opfa")
 
 ExceptHook = Callable[[type[BaseException], BaseException, TracebackType | None], object]
@@ -32,12 +33,16 @@ def raised_by_this_package(traceback: TracebackType | None) -> bool:
     return module.split(".")[0] in PACKAGES
 
 
+def traceback_requested() -> bool:
+    return os.environ.get(SHOW_TRACEBACK, "").strip().lower() in ("1", "true", "yes")
+
+
 def one_line_refusals(previous: ExceptHook) -> ExceptHook:
     """An excepthook printing this package's refusals as `error: ...`, and handing the rest to `previous`."""
 
     def hook(kind, error, traceback):
         refusal = issubclass(kind, REFUSALS) and raised_by_this_package(traceback)
-        if refusal and not os.environ.get(SHOW_TRACEBACK):
+        if refusal and not traceback_requested():
             print(f"error: {error}", file=sys.stderr)
         else:
             previous(kind, error, traceback)
