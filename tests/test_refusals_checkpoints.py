@@ -302,3 +302,19 @@ def test_a_missing_spec_path_is_named_as_missing_and_a_mistyped_name_gets_the_cl
         ValueError, match=r"^unknown hand 'inspyre' \(did you mean 'inspire'\?\): not a built-in"
     ):
         resolve_spec_path("inspyre")
+
+
+@pytest.mark.parametrize(
+    "removed", ["model.safetensors", "policy_postprocessor_step_1_opfa_unnormalize.safetensors"]
+)
+def test_a_checkpoint_copied_in_part_names_the_missing_file_through_lerobot_eval(trained, tmp_path, removed):
+    policy = tmp_path / "policy"
+    shutil.copytree(trained / "checkpoints" / "last" / "pretrained_model", policy)
+    (policy / removed).unlink()
+    result = _run(
+        "lerobot-eval", f"--policy.path={policy}", "--env.type=opfa", "--env.task=press_button",
+        "--env.hand=umi", "--env.n_points=32", "--eval.n_episodes=1", "--eval.batch_size=1",
+        f"--output_dir={tmp_path / 'eval'}",
+    )  # fmt: skip
+    line = _refused(result)
+    assert line.startswith("error: ") and f"{policy} is an incomplete checkpoint: {removed} missing" in line

@@ -7,7 +7,9 @@ same network serves a 1-DoF gripper and a 16-DoF hand.
 
 from __future__ import annotations
 
+import json
 from collections import deque
+from pathlib import Path
 
 import torch
 import torch.nn.functional as F  # noqa: N812
@@ -43,6 +45,23 @@ def loss_weights(config: OpfaConfig) -> Tensor:
     wrist = torch.full((len(config.embodiments), n_wrist), (1 - slot_share * len(widths)) / max(n_wrist, 1))
     slots = [slot_share * mask[:, :w] / mask[:, :w].sum(-1, keepdim=True).clamp(min=1) for w in widths]
     return torch.cat([wrist, *slots], dim=-1)
+
+
+def check_complete(folder: Path) -> None:
+    """A checkpoint folder holds its weights and every state file its processors' configs name: a folder
+    copied in part would otherwise fail in safetensors' or LeRobot's loaders with a traceback that names no
+    fix. (A Hub checkpoint's processor files are fetched later, each with its state files.)"""
+    wanted = ["model.safetensors"]
+    for name in ("policy_preprocessor.json", "policy_postprocessor.json"):
+        if (folder / name).is_file():
+            steps = json.loads((folder / name).read_text()).get("steps", [])
+            wanted += [step["state_file"] for step in steps if step.get("state_file")]
+    missing = [name for name in wanted if not (folder / name).is_file()]
+    if missing:
+        raise ValueError(
+            f"{folder} is an incomplete checkpoint: {', '.join(missing)} missing (a folder copied in part?); "
+            "copy or download the whole pretrained_model folder again"
+        )
 
 
 class OpfaPolicy(PreTrainedPolicy):
@@ -132,13 +151,12 @@ class OpfaPolicy(PreTrainedPolicy):
     def _load_as_safetensor(cls, model, model_file: str, map_location: str, strict: bool):
         """LeRobot loads weights non-strictly by default, which leaves a layer the file lacks at its random
         initialisation without a word (a warning at most): here a file that does not fit is an error. So is
-        a damaged file, named (safetensors' own error names none)."""
-        from pathlib import Path
-
+        a damaged file, named (safetensors' own error names none), and a folder without all its files."""
         from lerobot.utils.device_utils import resolve_safetensors_device
         from safetensors import SafetensorError
         from safetensors.torch import load_model
 
+        check_complete(Path(model_file).parent)
         device = resolve_safetensors_device(map_location)
         try:
             missing, unexpected = load_model(model, model_file, strict=False, device=device)
