@@ -208,6 +208,16 @@ def test_a_map_that_gives_one_entry_to_both_hands_or_leaves_a_side_unsaid_is_ref
         JointMap.from_dict({"slots": unsaid}, "unsaid.yaml")
 
 
+def test_a_slot_whose_entries_name_the_other_side_is_refused(robots):
+    """A G1's Inspire slots with their sides swapped: every joint 0.5 rad off, were it read."""
+    _, names, slots = ROBOTS["g1_inspire_arms_first"]
+    swapped = [{**slots[0], "side": slots[1]["side"]}, {**slots[1], "side": slots[0]["side"]}]
+    with pytest.raises(
+        JointMapError, match=r"swapped.yaml \(right hand\): entry 'kLeftHand\w+' names the left"
+    ):
+        JointMap.from_dict({"slots": swapped}, "swapped.yaml").bind(names, names)
+
+
 def _round_trip(pre, post, frames, rows) -> tuple[torch.Tensor, torch.Tensor, dict]:
     transition = batch_to_transition(batch_of(frames, rows))
     original = transition[TransitionKey.ACTION].clone()

@@ -317,6 +317,14 @@ class JointMap:
     def _bind_slot(self, slot: HandSlot, state: list[str], action: list[str]) -> None:
         spec = slot.spec
         where = self.source + (f" ({slot.side} hand)" if slot.side else "")
+        if slot.side is not None:
+            entries = [e for key in (OBS_STATE, ACTION) for e in slot.key_joints(key)]
+            other = next((e for e in entries if entry_side(e) not in (None, slot.side)), None)
+            if other is not None:
+                raise JointMapError(
+                    f"{where}: entry {other!r} names the {entry_side(other)} side, but the slot is the "
+                    f"{slot.side} hand's; swap the slots' `side` (or their entries)"
+                )
         for key, names in ((OBS_STATE, state), (ACTION, action)):
             for entry in slot.key_joints(key):
                 if entry not in names:
@@ -486,6 +494,20 @@ def _mapped_joint(value, where: str) -> MappedJoint:
     if not math.isfinite(scale) or not math.isfinite(offset) or scale == 0:
         raise JointMapError(f"{where}: scale must be finite and non-zero and offset finite, got {value!r}")
     return MappedJoint(value["joint"], scale, offset)
+
+
+def entry_words(name: str) -> list[str]:
+    """An entry's name as lower-case words, whatever its case: `kLeftHandThumb0` -> k, left, hand, thumb,
+    0; `right_hand.ring_mcp_side.pos` -> right, hand, ring, mcp, side, pos."""
+    return [part.lower() for part in re.findall(r"[A-Z]+(?![a-z])|[A-Z]?[a-z]+|[0-9]+", name)]
+
+
+def entry_side(name: str) -> str | None:
+    """The side an entry's name says: the first `left`/`right` word (`kRightHandIndex`; a two-armed
+    simulator's `right_left_jaw_joint` is the right arm's), or a leading `l`/`r` (`r_thumb_mcp`)."""
+    words = entry_words(name)
+    named = [w for w in words if w in SIDES]
+    return named[0] if named else {"l": "left", "r": "right"}.get(words[0] if words else "")
 
 
 def hands_named_in(robot_type: str | None, hands: Iterable[str] | None = None) -> list[str]:

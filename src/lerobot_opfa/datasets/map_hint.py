@@ -12,14 +12,13 @@ one whose limits they fit) and propose the units of entries that plainly are not
 from __future__ import annotations
 
 import math
-import re
 from collections import Counter
 from pathlib import Path
 
 from lerobot.utils.constants import OBS_STATE
 
 from lerobot_opfa.datasets.io import read_json
-from lerobot_opfa.datasets.joint_map import fits_limits
+from lerobot_opfa.datasets.joint_map import entry_side, entry_words, fits_limits
 from lerobot_opfa.hands.registry import hand_ref, load_hand
 from lerobot_opfa.hands.spec import HandSpec
 
@@ -46,14 +45,7 @@ DEGREE = math.pi / 180
 def _words(name: str) -> list[str]:
     """`kLeftHandThumb0` -> k, left, hand, thumb, 0; `right_hand.ring_mcp_side.pos` -> right, hand, ring,
     mcp, abd, pos (vendor words as the universal table's)."""
-    parts = re.findall(r"[A-Z]+(?![a-z])|[A-Z]?[a-z]+|[0-9]+", name)
-    return [_SYNONYMS.get(p.lower(), p.lower()) for p in parts]
-
-
-def _side(words: list[str]) -> str | None:
-    """`left`/`right` anywhere, or a leading `l`/`r` (`r_thumb_mcp`)."""
-    named = [w for w in words if w in ("left", "right")]
-    return named[0] if named else {"l": "left", "r": "right"}.get(words[0] if words else "")
+    return [_SYNONYMS.get(word, word) for word in entry_words(name)]
 
 
 def _meaning(name: str) -> set[str]:
@@ -76,7 +68,7 @@ def hand_sides(names: list[str]) -> dict[str | None, list[str]]:
     all of them under None."""
     by_side: dict[str | None, list[str]] = {}
     for name in names:
-        by_side.setdefault(_side(_words(name)), []).append(name)
+        by_side.setdefault(entry_side(name), []).append(name)
     handed = [s for s in ("left", "right") if any(map(_finger, by_side.get(s, [])))]
     return {s: by_side[s] for s in handed} if len(handed) > 1 else {None: list(names)}
 
