@@ -300,6 +300,14 @@ class JointMap:
             twice = sorted({e for e in claimed if claimed.count(e) > 1})
             if twice:
                 raise JointMapError(f"{self.source}: entries {twice} are given to two hand slots in {key}")
+        for slot in self.slots:
+            entries = [e for key in (OBS_STATE, ACTION) for e in slot.key_joints(key)]
+            other = next((e for e in entries if slot.side and entry_side(e) not in (None, slot.side)), None)
+            if other is not None:
+                raise JointMapError(
+                    f"{self.source} ({slot.side} hand): entry {other!r} names the {entry_side(other)} side, "
+                    f"but the slot is the {slot.side} hand's; swap the slots' `side` (or their entries)"
+                )
         for entry in self.drop:
             if entry in self.key_joints(OBS_STATE) or entry in action:
                 raise JointMapError(
@@ -317,14 +325,6 @@ class JointMap:
     def _bind_slot(self, slot: HandSlot, state: list[str], action: list[str]) -> None:
         spec = slot.spec
         where = self.source + (f" ({slot.side} hand)" if slot.side else "")
-        if slot.side is not None:
-            entries = [e for key in (OBS_STATE, ACTION) for e in slot.key_joints(key)]
-            other = next((e for e in entries if entry_side(e) not in (None, slot.side)), None)
-            if other is not None:
-                raise JointMapError(
-                    f"{where}: entry {other!r} names the {entry_side(other)} side, but the slot is the "
-                    f"{slot.side} hand's; swap the slots' `side` (or their entries)"
-                )
         for key, names in ((OBS_STATE, state), (ACTION, action)):
             for entry in slot.key_joints(key):
                 if entry not in names:
