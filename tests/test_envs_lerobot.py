@@ -122,6 +122,7 @@ def test_cli_bad_names_are_clear_errors(tmp_path, capsys):
             "unknown task 'juggle'; valid tasks: lift, lift_box, pick_place, press_button, pull_drawer",
         ),
         ("--hand", "hook", "unknown hand 'hook': not a built-in (ability, allegro"),
+        ("--hand", "inspire+xhand", "lift takes one hand, got two ('inspire+xhand'); the two-hand tasks are"),
         ("--regions", "moon", "unknown region(s) ['moon']; valid regions: all, near_right"),
     ]:
         args = {"--task": "lift", "--hand": "umi", "--regions": "all", flag: value}

@@ -177,7 +177,13 @@ def check_any_task(name: str | None) -> str:
 
 def task_hands(task: str, hand: str) -> list[str]:
     """The hands a task's `hand` names: one, or for a two-hand task one per side (`inspire+xhand`)."""
-    return parse_hands(hand) if task in BIMANUAL_TASKS else [hand]
+    if task in BIMANUAL_TASKS:
+        return parse_hands(hand)
+    if HANDS_SEPARATOR in str(hand):
+        raise ValueError(
+            f"{task} takes one hand, got two ('{hand}'); the two-hand tasks are {', '.join(BIMANUAL_TASKS)}"
+        )
+    return [hand]
 
 
 def parse_hands(hands: str | list[str] | tuple[str, ...]) -> list[str]:
@@ -375,7 +381,8 @@ def sim_env(
             raise ValueError(f"two-hand task '{task}' takes control joints")
         options.pop("rgb_cameras", None)
         return OpfaBimanualEnv(task, hand, regions, **options)
-    return OpfaSimEnv(task, hand, regions, **options)
+    (one,) = task_hands(task, hand)
+    return OpfaSimEnv(task, one, regions, **options)
 
 
 def scripted_expert(

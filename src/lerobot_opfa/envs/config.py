@@ -99,7 +99,7 @@ class OpfaEnvConfig(EnvConfig):
             state = action = sum(len(WRIST_JOINTS) + len(spec.joints) for spec in specs)
         else:
             with flag("env.hand"):
-                spec = load_spec(self.hand)
+                spec = load_spec(*task_hands(self.task, self.hand))
             with flag("env.control"):
                 check_control(self.control, spec.name, len(spec.joints))
             if self.control == "ee_delta":
