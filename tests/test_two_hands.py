@@ -218,6 +218,19 @@ def test_a_slot_whose_entries_name_the_other_side_is_refused(robots):
         JointMap.from_dict({"slots": swapped}, "swapped.yaml").bind(names, names)
 
 
+def test_hand_fields_beside_slots_are_told_to_go_into_a_slot(robots):
+    _, _, slots = ROBOTS["g1_inspire_arms_first"]
+    beside = {"slots": slots, "hand": "inspire", "joints": slots[0]["joints"]}
+    with pytest.raises(
+        JointMapError, match=r"beside.yaml: hand, joints beside `slots`: a map with slots gives"
+    ):
+        JointMap.from_dict(beside, "beside.yaml")
+    with pytest.raises(
+        JointMapError, match=r"unknown field\(s\) \['robot'\] \(valid here: action_names, drop"
+    ):
+        JointMap.from_dict({"slots": slots, "robot": "g1"}, "typo.yaml")
+
+
 def _round_trip(pre, post, frames, rows) -> tuple[torch.Tensor, torch.Tensor, dict]:
     transition = batch_to_transition(batch_of(frames, rows))
     original = transition[TransitionKey.ACTION].clone()

@@ -221,10 +221,15 @@ class JointMap:
             parsed = (HandSlot.from_dict(raw, source),)
             allowed = top | set(SLOT_FIELDS) - {"side"}
         unknown = set(raw) - allowed
+        if unknown and "slots" in raw and unknown <= set(SLOT_FIELDS):
+            raise JointMapError(
+                f"{source}: {', '.join(sorted(unknown))} beside `slots`: a map with slots gives each hand's "
+                "fields in its slot (`- side: left` then `hand:`, `joints:`); a one-handed robot's map has "
+                "no `slots`"
+            )
         if unknown:
             raise JointMapError(
-                f"{source}: unknown field(s) {sorted(unknown)} (hand, joints, state_joints, action_joints, "
-                "slots, drop, robot_type)"
+                f"{source}: unknown field(s) {sorted(unknown)} (valid here: {', '.join(sorted(allowed))})"
             )
         drop = raw.get("drop") or []
         if not isinstance(drop, list):
