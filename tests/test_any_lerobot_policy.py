@@ -157,3 +157,25 @@ def test_a_policy_with_its_own_relative_action_step_is_refused_in_one_line(train
     err = capsys.readouterr().err.strip()
     assert f"{policy}'s preprocessor has its own relative-action step" in err and len(err.splitlines()) == 1
     assert not (tmp_path / "o").exists()
+
+
+def test_convert_io_refuses_a_latent_dataset_the_policy_was_not_trained_on(latent, trained, tmp_path, capsys):
+    """Another latent dataset of the same width (body 6 + z 64: umi's demos alone) has other statistics."""
+    _, checkpoint = trained
+    other = tmp_path / "latent_umi"
+    opfa(
+        "policy",
+        "latent-dataset",
+        "--input",
+        str(latent.parent / "umi"),
+        "--output",
+        str(other),
+        "--drop",
+        DEPTH,
+    )
+    capsys.readouterr()
+    convert = ["policy", "convert-io", "--policy", str(checkpoint), "--dataset", str(other)]
+    assert cli.main([*convert, "--output", str(tmp_path / "o")]) != 0
+    err = capsys.readouterr().err.strip()
+    assert f"{checkpoint} was not trained on {other}" in err and len(err.splitlines()) == 1, err
+    assert not (tmp_path / "o").exists()

@@ -42,6 +42,7 @@ from lerobot_opfa.datasets.io import (
     check_dataset_folder,
     check_outside_inputs,
     read_columns,
+    read_json,
 )
 from lerobot_opfa.datasets.layout import LATENT_ROBOT_TYPE
 from lerobot_opfa.datasets.merge import BOOKKEEPING
@@ -183,10 +184,30 @@ def convert_checkpoint(
     if "NormalizerProcessorStep" not in pre_names or "UnnormalizerProcessorStep" not in post_names:
         raise ValueError(f"expected LeRobot's (un)normaliser steps, got {pre_names} and {post_names}")
     at = pre_names.index("NormalizerProcessorStep")
+    _check_trained_on(policy_dir, pre.steps[at].state_dict(), root)
     pre.steps[at:at] = [steps.encode, steps.normalize]
     at = post_names.index("UnnormalizerProcessorStep") + 1
     post.steps[at:at] = [steps.unnormalize, steps.decode]
     return write_copy(policy_dir, output, pre, post), config.output_features[ACTION].shape[0]
+
+
+def _check_trained_on(policy_dir: Path, normalizer: dict[str, torch.Tensor], root: Path) -> None:
+    """A stock checkpoint's normaliser holds the statistics of the latent dataset it was trained on: a
+    dataset of another GaLR, other embodiments or other frames has other statistics, and its steps would
+    decode the policy's actions into other joints without a word."""
+    recorded = read_json(root / "meta" / "stats.json")
+    for key in (OBS_STATE, ACTION):
+        for stat in ("mean", "std", "min", "max"):
+            saved = normalizer.get(f"{key}.{stat}")
+            if saved is None or stat not in recorded.get(key, {}):
+                continue
+            saved, theirs = saved.double().flatten(), torch.tensor(recorded[key][stat]).double().flatten()
+            off = (saved - theirs).abs().max().item() if saved.shape == theirs.shape else float("inf")
+            if off > 1e-4 * max(1.0, theirs.abs().max().item()):
+                raise ValueError(
+                    f"{policy_dir} was not trained on {root}: its normaliser's {key} {stat} differs from the "
+                    f"dataset's (by up to {off:.3g}); give --dataset the latent dataset it was trained on"
+                )
 
 
 def _training_dataset(policy_dir: Path) -> Path:
