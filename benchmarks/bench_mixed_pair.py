@@ -40,9 +40,10 @@ from lerobot.policies.factory import make_pre_post_processors  # noqa: E402
 from lerobot.utils.constants import OBS_STATE  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
+import lerobot_policy_opfa  # noqa: E402, F401  (the plugin, as LeRobot loads it: steps, robot_type)
 from lerobot_opfa.envs.bimanual import OpfaBimanualEnv  # noqa: E402
 from lerobot_opfa.experiments.jobs import EVAL_SEED  # noqa: E402
-from lerobot_opfa.features import OBS_HAND, OBS_POINTCLOUD  # noqa: E402
+from lerobot_opfa.features import OBS_POINTCLOUD, ROBOT_TYPE  # noqa: E402
 from lerobot_opfa.policy.modeling_opfa import OpfaPolicy  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"
@@ -63,7 +64,7 @@ class Pilot:
     def act(self, state: np.ndarray, hands: str, cloud: np.ndarray) -> np.ndarray:
         observation = {
             OBS_STATE: torch.tensor(state).float(),
-            OBS_HAND: hands,
+            ROBOT_TYPE: hands,
             OBS_POINTCLOUD: torch.tensor(cloud).float(),
         }
         return self.post(self.policy.select_action(self.pre(observation)))[0].numpy()

@@ -1875,6 +1875,7 @@ def define_probes(fx: dict[str, Path], work: Path) -> list[Probe]:  # noqa: C901
         if "policy" not in holder:
             from lerobot.policies.factory import make_pre_post_processors
 
+            import lerobot_policy_opfa  # noqa: F401  (the plugin, as LeRobot loads it: steps, robot_type)
             from lerobot_opfa.policy.modeling_opfa import OpfaPolicy
 
             policy = OpfaPolicy.from_pretrained(fx["checkpoint"]).eval()
@@ -1890,7 +1891,7 @@ def define_probes(fx: dict[str, Path], work: Path) -> list[Probe]:  # noqa: C901
             "observation.pointcloud": torch.randn(256 * 3) * 0.03 if cloud is None else cloud,
             "observation.environment_state": torch.tensor([0.05, -0.02, 0.04]),
             "task": "lift the object",
-            "observation.hand": hand,  # the robot of the frames: the checkpoint drives umi and inspire
+            "robot_type": hand,  # the robot of the frames: the checkpoint drives umi and inspire
         }
         policy.reset()
         with torch.no_grad():

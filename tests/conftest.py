@@ -19,6 +19,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import pytest  # noqa: E402
 import yaml  # noqa: E402
 
+import lerobot_policy_opfa  # noqa: E402, F401  (the plugin, as LeRobot loads it: steps, robot_type)
 from lerobot_opfa.hands.registry import builtin_hands, hand_models_dir  # noqa: E402
 
 if os.environ.get("PYTEST_XDIST_WORKER"):

@@ -126,7 +126,7 @@ def interleaved_actions(checkpoint: Path, policy_type: str, recorded: Path) -> N
         observation = {k: frames[hand][k] for k in ("observation.state", "observation.images.front_rgb")}
         policy.reset()
         with torch.no_grad():
-            action = post(policy.select_action(pre({**observation, "observation.hand": hand})))
+            action = post(policy.select_action(pre({**observation, "robot_type": hand})))
         assert action.shape == (1, len(frames[hand]["action"])), hand
 
 

@@ -98,7 +98,7 @@ def test_a_policy_of_two_pairs_of_hands_drives_the_mixed_pair_in_the_simulator_a
     from test_policy import make_policy, save_galr
 
     from lerobot_opfa import cli
-    from lerobot_opfa.features import OBS_HAND, OBS_POINTCLOUD
+    from lerobot_opfa.features import OBS_POINTCLOUD, ROBOT_TYPE
     from lerobot_opfa.policy.joint_steps import OpfaEncodeJointsStep
 
     save_galr(tmp_path / "galr", ["inspire", "xhand"])
@@ -118,7 +118,7 @@ def test_a_policy_of_two_pairs_of_hands_drives_the_mixed_pair_in_the_simulator_a
         hands="inspire+xhand", obs_type="pointcloud", pointcloud_source="geometry", n_points=32
     )
     obs, _ = env.reset(seed=0)
-    observation = {OBS_STATE: torch.tensor(obs["agent_pos"]).float(), OBS_HAND: env.hand_name,
+    observation = {OBS_STATE: torch.tensor(obs["agent_pos"]).float(), ROBOT_TYPE: env.hand_name,
                    OBS_POINTCLOUD: torch.tensor(obs["pointcloud"]).float()}  # fmt: skip
     with torch.no_grad():
         action = post(policy.select_action(pre(observation)))
@@ -127,4 +127,4 @@ def test_a_policy_of_two_pairs_of_hands_drives_the_mixed_pair_in_the_simulator_a
     env.close()
     encoder = next(step for step in pre.steps if isinstance(step, OpfaEncodeJointsStep))
     with pytest.raises(ValueError, match="it cannot drive inspire\\+xhand"):
-        encoder.robot_map((0, 1), simulator=False)
+        encoder.trained_map((0, 1))

@@ -201,10 +201,10 @@ def test_spatial_experiment_toy_end_to_end_and_resume(tmp_path, capsys):
     assert [c.stat().st_mtime_ns for c in checkpoints] == stamps
     assert json.loads((report / "spatial_toy.json").read_text())["runs"] == 2
 
-    # the env names its hand, so the policy refuses a hand it was not trained on
+    # the env says its robot_type, so the policy refuses a hand it was not trained on
     from lerobot.policies.factory import make_pre_post_processors
 
-    from lerobot_opfa.features import OBS_HAND, OBS_POINTCLOUD
+    from lerobot_opfa.features import OBS_POINTCLOUD, ROBOT_TYPE
     from lerobot_opfa.policy.modeling_opfa import OpfaPolicy
 
     opfa = checkpoints[0].parent
@@ -213,9 +213,9 @@ def test_spatial_experiment_toy_end_to_end_and_resume(tmp_path, capsys):
     observation = {
         "observation.state": torch.zeros(1, 6 + 12),
         OBS_POINTCLOUD: torch.zeros(1, 3 * 64),
-        OBS_HAND: "xhand",
+        ROBOT_TYPE: "xhand",
     }
-    with pytest.raises(ValueError, match="cannot drive hand 'xhand'"):
+    with pytest.raises(ValueError, match="robot_type 'xhand' names hand\\(s\\) xhand"):
         pre(observation)
 
 

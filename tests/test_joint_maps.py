@@ -242,7 +242,7 @@ def test_the_simulator_and_a_robot_with_permuted_scaled_entries_go_through_the_s
     by a JointMap, each by its own, and each gets its own entries back."""
     from unittest import mock
 
-    from lerobot_opfa.features import OBS_HAND
+    from lerobot_opfa.features import ROBOT_TYPE
     from lerobot_opfa.policy.joint_steps import OpfaEncodeJointsStep
 
     _, pre, post, frames = make_policy(
@@ -271,14 +271,14 @@ def test_the_simulator_and_a_robot_with_permuted_scaled_entries_go_through_the_s
         widths = {}
         for name, observation in (
             ("arm", {OBS_STATE: arm_state}),
-            ("simulator", {OBS_STATE: sim_state, OBS_HAND: "inspire"}),
+            ("simulator", {OBS_STATE: sim_state, ROBOT_TYPE: "inspire"}),
         ):
             used.clear()
             batch = pre({**observation, OBS_POINTCLOUD: frames[3][OBS_POINTCLOUD][-1]})
             action = post(batch[OBS_STATE][:, None])  # the state as a one-step action: same entries
             widths[name] = action.shape[-1]
             assert [(op, key) for op, key, _ in used] == [("split", OBS_STATE), ("join", ACTION)], name
-            expected = encoder.robot_map((0,), simulator=name == "simulator")
+            expected = encoder.hands_map((0,)) if name == "simulator" else encoder.trained_map((0,))
             assert all(joint_map == expected for _, _, joint_map in used), name  # the decode step: a copy
     assert widths == {"arm": len(ARM) + len(INSPIRE), "simulator": len(ARM) + hand.dof}
 

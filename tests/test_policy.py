@@ -33,7 +33,7 @@ from lerobot_opfa.datasets.layout import JointNameError, read_layout
 from lerobot_opfa.datasets.merge import merge_datasets
 from lerobot_opfa.datasets.statistics import STATS_FILE
 from lerobot_opfa.datasets.synthetic import write_synthetic_dataset
-from lerobot_opfa.features import OBS_EMBODIMENT, OBS_HAND, OBS_POINTCLOUD
+from lerobot_opfa.features import OBS_EMBODIMENT, OBS_POINTCLOUD, ROBOT_TYPE
 from lerobot_opfa.flags import FlagError
 from lerobot_opfa.galr.model import Galr, GalrConfig, hand_record
 from lerobot_opfa.hands import load_hand
@@ -94,14 +94,15 @@ def batch_of(dataset: LeRobotDataset, rows: list[int]) -> dict:
 
 
 def native_observation(hand: str, cloud: torch.Tensor) -> dict:
-    """What the simulator's observation looks like after LeRobot's `preprocess_observation`."""
+    """What the simulator's observation looks like after LeRobot's `preprocess_observation` and the env's
+    processor (its robot_type)."""
     state = torch.cat([torch.tensor([0.0, 0.0, 0.3, 0.0, 0.0, 0.0]), load_hand(hand).pose("open").float()])
     env_state = torch.tensor([0.05, -0.02, 0.04])
     return {
         "observation.state": state,
         OBS_POINTCLOUD: cloud,
         OBS_ENV_STATE: env_state,
-        OBS_HAND: hand,
+        ROBOT_TYPE: hand,
         "task": "lift the object",
     }
 
@@ -354,10 +355,12 @@ def test_a_galr_policy_trains_on_the_hand_states_its_decoded_actions_leave(data,
         if dataset == "merged":
             body, q = state[:, :wrist], load_hand(hand).from_universal(state[:, wrist:universal])
         else:
-            body, (q,) = encoder.robot_map((index,), simulator=False).split(state, OBS_STATE)
+            body, (q,) = encoder.trained_map((index,)).split(state, OBS_STATE)
         held = encoder.decode(index, encoder.encode(index, q))  # what the hand reaches, commanded decoded
-        live = {OBS_STATE: torch.cat([body, held], dim=-1), OBS_HAND: hand}  # a frame of that hand, no action
-        deployed.append(encoder(create_transition(observation=live))[TransitionKey.OBSERVATION][OBS_STATE])
+        live = create_transition(  # a frame of that hand, no action
+            observation={OBS_STATE: torch.cat([body, held], dim=-1)}, complementary_data={ROBOT_TYPE: hand}
+        )
+        deployed.append(encoder(live)[TransitionKey.OBSERVATION][OBS_STATE])
     gap = (trained[OBS_STATE] - torch.stack(deployed)).abs().max()
     assert bool(gap < 1e-4) is decoded_state, f"training and deployed states differ by {gap}"
 
@@ -746,7 +749,7 @@ def test_a_checkpoint_of_several_robots_is_pinned_to_one_for_frames_that_do_not_
         obj.save_pretrained(tmp_path / "all")
     cloud = ds[0][OBS_POINTCLOUD][-1]
     expected = rollout(policy, pre, post, "leap", cloud, steps=1)
-    silent = {k: v for k, v in native_observation("leap", cloud).items() if k != OBS_HAND}
+    silent = {k: v for k, v in native_observation("leap", cloud).items() if k != ROBOT_TYPE}
     with pytest.raises(
         ValueError, match=r"drives several robots \(umi, inspire, leap\) and the frames do not"
     ):

@@ -18,7 +18,7 @@ def encode_step(*hands: str, **fields) -> OpfaEncodeJointsStep:
 
 
 def robot_of(step: OpfaEncodeJointsStep, robot_type: str) -> list[list[int]]:
-    """The embodiment ids the step gives a frame of a robot of `robot_type`, as `lerobot-rollout` batches it."""
+    """The embodiment ids the step gives a frame of a `robot_type` robot, batched as lerobot-rollout does."""
     batch = {"observation.state": torch.zeros(1, 7), "robot_type": robot_type}
     return step(batch_to_transition(batch))[TransitionKey.OBSERVATION]["observation.embodiment"].tolist()
 

@@ -261,7 +261,7 @@ def test_a_two_handed_robots_actions_come_back_in_its_entries_order_and_units(ro
     recorded = LeRobotDataset(f"local/{name}", root=robots / name, delta_timestamps=delta)
     original = batch_of(recorded, rows)[ACTION]  # a merge keeps its input's frames in order
     assert back.shape == original.shape and back.shape[-1] == len(names)
-    joint_map = encoder.robot_map(tuple(encoder.robots[0]), simulator=False)
+    joint_map = encoder.trained_map(tuple(encoder.robots[0]))
     body = joint_map.body_names(ACTION)
     columns = [names.index(b) for b in body]
     assert torch.allclose(back[..., columns], original[..., columns], atol=1e-4), "the body as recorded"
@@ -287,7 +287,7 @@ def test_both_hands_of_a_g1_go_through_the_latent_each_in_its_own_slot(robots):
         if step is encoder:
             break
     state = transition[TransitionKey.OBSERVATION][OBS_STATE][:, -1]
-    body, (left, right) = encoder.robot_map((0, 0), simulator=False).split(batch[OBS_STATE][:, -1], OBS_STATE)
+    body, (left, right) = encoder.trained_map((0, 0)).split(batch[OBS_STATE][:, -1], OBS_STATE)
     latent = encoder.latent_dim
     assert state.shape[-1] == body.shape[-1] + 2 * latent
     assert torch.allclose(state[:, : body.shape[-1]], body)
@@ -445,7 +445,7 @@ def test_a_right_first_slot_map_reads_the_simulators_frames_as_its_recorded_robo
         [torch.rand(3, 6), within_limits("inspire"), torch.rand(3, 6), within_limits("xhand")], 1
     )
     recorded = step(batch_to_transition({OBS_STATE: state}))[TransitionKey.OBSERVATION]
-    simulated = step(batch_to_transition({OBS_STATE: state, "observation.hand": "inspire+xhand"}))
+    simulated = step(batch_to_transition({OBS_STATE: state, "robot_type": "inspire+xhand"}))
     simulated = simulated[TransitionKey.OBSERVATION]
     assert recorded[OBS_EMBODIMENT].tolist() == simulated[OBS_EMBODIMENT].tolist() == [[1, 0]] * 3
     assert torch.equal(recorded[OBS_STATE], simulated[OBS_STATE])

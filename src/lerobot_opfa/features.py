@@ -4,8 +4,9 @@ policy all name them, and none of them should import another for a string."""
 OBS_POINTCLOUD = "observation.pointcloud"
 OBS_EMBODIMENT = "observation.embodiment"
 """A merged dataset's per-frame hand index (its feature names list the hands)."""
-OBS_HAND = "observation.hand"
-"""Name of the hand an env observation comes from (set by the `opfa` env's processor; not a tensor)."""
+ROBOT_TYPE = "robot_type"
+"""LeRobot's name for a robot's type in an observation batch (`prepare_observation_for_inference`): the
+complementary data that says which robot a frame comes from (`policy/robot_type.py`)."""
 
 
 def frame_embodiments(ids, slots: int = 1):

@@ -3,10 +3,10 @@ checkpoints, resume, logging, wandb, accelerate) on the dataset held in memory.
 
 LeRobot's `make_train_eval_datasets` is swapped, for this call only, for one that wraps the LeRobotDatasets
 it makes in `InMemoryDataset`; everything else is LeRobot's code, including its episode-aware sampler. The
-swap, and one more (`sys.argv`, which LeRobot reads itself), are `mock.patch` because LeRobot 0.6.1 offers
-no seam for them: `train` says why beside each. The config is parsed here and handed to LeRobot's
-`train(cfg)` (`parser.wrap` takes a parsed config), so that a flag's error shows its cause. The process
-also keeps freed memory for reuse (glibc), which spares the update step its page faults.
+swap, and one more (`sys.argv`, which LeRobot reads itself), are patched with `unittest.mock` because
+LeRobot 0.6.1 offers no seam for them: `train` says why beside each. The config is parsed here and handed
+to LeRobot's `train(cfg)` (`parser.wrap` takes a parsed config), so that a flag's error shows its cause.
+The process also keeps freed memory for reuse (glibc), which spares the update step its page faults.
 """
 
 from __future__ import annotations

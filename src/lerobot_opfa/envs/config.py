@@ -4,12 +4,11 @@ LeRobot adapter on top of the simulator (`env`, `tasks`)."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
 
 import gymnasium as gym
 from lerobot.configs import FeatureType, PolicyFeature
 from lerobot.envs.configs import EnvConfig
-from lerobot.processor import ObservationProcessorStep, PolicyProcessorPipeline
+from lerobot.processor import EnvTransition, PolicyProcessorPipeline, ProcessorStep, TransitionKey
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGES, OBS_STATE
 
 from lerobot_opfa.datasets.joint_map import HANDS_SEPARATOR
@@ -25,7 +24,7 @@ from lerobot_opfa.envs.env import OBS_TYPES, POINTCLOUD_SOURCES, check_choice, p
 from lerobot_opfa.envs.regions import parse_regions
 from lerobot_opfa.envs.scene import WRIST_JOINTS
 from lerobot_opfa.envs.tasks import ENV_STATE_DIM
-from lerobot_opfa.features import OBS_HAND, OBS_POINTCLOUD
+from lerobot_opfa.features import OBS_POINTCLOUD, ROBOT_TYPE
 from lerobot_opfa.flags import flag
 from lerobot_opfa.hands.registry import load_spec
 
@@ -127,10 +126,12 @@ class OpfaEnvConfig(EnvConfig):
                 self.features_map[key] = f"{OBS_IMAGES}.{camera}_rgb"
 
     def get_env_processors(self) -> tuple[PolicyProcessorPipeline, PolicyProcessorPipeline]:
-        """Tells the policy which hand the observations come from, so a cross-embodiment policy picks the
-        right embodiment even when two of its hands have the same joint count. Under `ee_delta` the env
-        is a robot like any other: its frames go through the joint map the policy was trained with."""
-        steps = [] if self.control == "ee_delta" else [HandNameStep(self.hand_name)]
+        """Gives each frame the env's `robot_type`, as LeRobot gives a robot's: its hands' names, under
+        which the policy reads it in their spec order and units, as it reads the `opfa_sim` rig, and picks
+        the right embodiment even when two of its hands have the same joint count. Under `ee_delta` its
+        entries are others: it says no type, and its frames go through the joint map the policy was trained
+        with."""
+        steps = [] if self.control == "ee_delta" else [RobotTypeStep(self.hand_name)]
         return PolicyProcessorPipeline(steps=steps), PolicyProcessorPipeline(steps=[])
 
     @property
@@ -179,13 +180,17 @@ class OpfaEnvConfig(EnvConfig):
 
 
 @dataclass
-class HandNameStep(ObservationProcessorStep):
-    """Adds `observation.hand` (the hand's name) to every observation of an `opfa` env."""
+class RobotTypeStep(ProcessorStep):
+    """Adds the env's `robot_type` to every frame's complementary data, where LeRobot puts a robot's."""
 
-    hand: str = ""
+    robot_type: str = ""
 
-    def observation(self, observation: dict[str, Any]) -> dict[str, Any]:
-        return {**observation, OBS_HAND: self.hand}
+    def __call__(self, transition: EnvTransition) -> EnvTransition:
+        complementary = dict(transition.get(TransitionKey.COMPLEMENTARY_DATA) or {})
+        return {
+            **transition,
+            TransitionKey.COMPLEMENTARY_DATA: {**complementary, ROBOT_TYPE: self.robot_type},
+        }
 
     def transform_features(self, features):
         return features

@@ -50,6 +50,6 @@ def pin_robot(policy_dir: Path | str, hand: str, output: Path | str, robot_type:
         raise ValueError(
             f"{policy_dir} does not map joints (a stock policy before `policy convert-io`): nothing to pin"
         )
-    encode.robot_slots(hand)  # one of its robots, or a one-line error naming them
+    encode.pinned_robot(hand)  # one of its robots, or a one-line error naming them
     encode.hand, encode.accept_robot_type = hand, robot_type
     return write_copy(policy_dir, output, pre)

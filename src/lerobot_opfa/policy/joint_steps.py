@@ -9,16 +9,18 @@ Postprocessor: `opfa_decode_joints` maps policy-space actions back to the robot'
 `galr` through the GaLR decoder), inverting the same joint map. The robot's record and the GaLR are saved
 once, by the encode step; the decode step uses its pair's.
 
-Which robot a frame comes from is said once, by the frame: `observation.embodiment` ids (a merged dataset),
-`observation.hand` (the simulator's frames, whose entries are its hand's body entries then joints in spec
-order: the identity map; `inspire+xhand` for two arms, per side), or nothing (the one robot of a one-robot
-policy, or the pipeline's `hand`). A robot is named by the embodiment of each of its hand slots (one for a
-one-handed robot, two for a two-armed one), and its frames' ids are those, (B, slots). Every
-robot's frames go through the same code, a `JointMap`. A postprocessor only sees the action, so it reads
-the robot from its own preprocessor's last batch: the encode step is LeRobot's relative-action step and the
-postprocessor's steps its absolute-action steps, the one pairing LeRobot restores when it loads a pipeline
-pair (`make_pre_post_processors` -> `_reconnect_relative_absolute_steps`); the relative conversion itself
-stays off. Each pair is its own: two pipelines of one checkpoint drive two robots in one process.
+Which robot a frame comes from is said by the frame: `observation.embodiment` ids (a merged dataset), or
+the robot's `robot_type`, which LeRobot passes with every frame of a robot (`robot_type.py`) and the `opfa`
+env's processor with every frame of the simulator. A robot named by its hands (`inspire`, `inspire+xhand`:
+the `opfa_sim` rig and env) is read in their specs' order and units; another is the trained robot its
+robot_type names, the one the pipeline is pinned to (`hand`), or a one-robot policy's. A robot is named by
+the embodiment of each of its hand slots (one for a one-handed robot, two for a two-armed one), and its
+frames' ids are those, (B, slots). Every robot's frames go through the same code, a `JointMap`. A
+postprocessor only sees the action, so it reads the robot (its ids and map) from its own preprocessor's last
+batch: the encode step is LeRobot's relative-action step and the postprocessor's steps its absolute-action
+steps, the one pairing LeRobot restores when it loads a pipeline pair (`make_pre_post_processors` ->
+`_reconnect_relative_absolute_steps`); the relative conversion itself stays off. Each pair is its own: two
+pipelines of one checkpoint drive two robots in one process.
 """
 
 from __future__ import annotations
@@ -37,7 +39,7 @@ from lerobot.processor.relative_action_processor import (
 from lerobot.utils.constants import ACTION, OBS_STATE
 
 from lerobot_opfa.datasets.joint_map import HANDS_SEPARATOR, SIDES, JointMap, arm_entries, hands_named_in
-from lerobot_opfa.features import OBS_EMBODIMENT, OBS_HAND, OBS_POINTCLOUD, frame_embodiments
+from lerobot_opfa.features import OBS_EMBODIMENT, OBS_POINTCLOUD, ROBOT_TYPE, frame_embodiments
 from lerobot_opfa.galr.frozen import encode_joints, encode_universal, relocate_hand
 from lerobot_opfa.galr.model import Galr
 from lerobot_opfa.hands.bundle import pack, unpack
@@ -46,7 +48,6 @@ from lerobot_opfa.hands.registry import builtin_hands, load_hand, load_spec
 from lerobot_opfa.hands.universal import UNIVERSAL_JOINT_NAMES
 from lerobot_opfa.policy.action_spaces import ACTION_SPACES, ActionSpace
 from lerobot_opfa.policy.latent_cache import LatentCache
-from lerobot_opfa.policy.robot_type import ROBOT_TYPE
 
 LOAD_PAIRED = "load the two with lerobot's make_pre_post_processors(..., pretrained_path=...): it pairs them"
 """How a postprocessor gets its preprocessor's encode step, the one it reads the robot from."""
@@ -152,7 +153,7 @@ class _HandSpace:
             tuple(robot): JointMap.from_dict(m, f"the joint map of '{self.robot_name(robot)}'")
             for robot, m in zip(self.robots, self.joint_maps, strict=True)
         }
-        self._simulator_maps: dict[tuple[int, ...], JointMap] = {}
+        self._hands_maps: dict[tuple[int, ...], JointMap] = {}
 
     @property
     def slot_sides(self) -> list[str | None]:
@@ -188,30 +189,37 @@ class _HandSpace:
         """Body entries of the policy's `key` ("observation.state" or "action")."""
         return self.wrist_dim if key == OBS_STATE or self.action_wrist_dim is None else self.action_wrist_dim
 
-    def robot_map(self, robot: tuple[int, ...], simulator: bool) -> JointMap:
-        """The joint map of the robot whose slots hold embodiments `robot`, for its frames, or for the
-        simulator's of those hands: the body entries, then the joints in spec order (the identity); with
-        two hands, that per side (`joint_map.arm_entries`). The simulator takes any pair of the policy's
-        hands, one it was not trained on too (each slot's hand is decoded on its own)."""
-        if not simulator:
-            if robot not in self.maps:
-                raise ValueError(
-                    f"this policy drives {', '.join(map(self.robot_name, self.robots))}; it cannot drive "
-                    f"{self.robot_name(robot)}"
-                )
-            return self.maps[robot]
-        if robot not in self._simulator_maps:
+    def trained_map(self, robot: tuple[int, ...]) -> JointMap:
+        """The joint map of the trained robot whose slots hold embodiments `robot`."""
+        if robot not in self.maps:
+            raise ValueError(
+                f"this policy drives {', '.join(map(self.robot_name, self.robots))}; it cannot drive "
+                f"{self.robot_name(robot)}"
+            )
+        return self.maps[robot]
+
+    def names_its_hands(self, robot_type: str | None) -> bool:
+        """Whether `robot_type` is a robot named by its hands, each one of the policy's (`inspire`, or
+        `inspire+xhand` for two, left first): the `opfa_sim` rig's and env's robot types."""
+        hands = (robot_type or "").split(HANDS_SEPARATOR)
+        return len(hands) == len(self.slot_sides) and all(hand in self.embodiments for hand in hands)
+
+    def hands_map(self, robot: tuple[int, ...]) -> JointMap:
+        """The joint map of a robot named by its hands (`names_its_hands`): its body entries, then its
+        hand's joints in spec order and units; with two arms, that per side, left first
+        (`joint_map.arm_entries`). Any pair of the policy's hands, one it was not trained on too (each
+        slot's hand is decoded on its own)."""
+        if robot not in self._hands_maps:
             if len(robot) == 1:
-                self._simulator_maps[robot] = self._spec_order_map(self.hand_refs[robot[0]])
-            else:
-                # The simulator lays its arms out left first; the policy's slots keep their own order.
+                self._hands_maps[robot] = self._spec_order_map(self.hand_refs[robot[0]])
+            else:  # laid out left first; the policy's slots keep their own order
                 arms = {
                     side: load_spec(self.hand_refs[i]) for side, i in zip(self.slot_sides, robot, strict=True)
                 }
                 body = [f"body_{i}" for i in range(self.wrist_dim // len(robot))]
                 names = arm_entries({side: arms[side] for side in SIDES}, body)
-                self._simulator_maps[robot] = JointMap.named_after_arms(arms, names, names)
-        return self._simulator_maps[robot]
+                self._hands_maps[robot] = JointMap.named_after_arms(arms, names, names)
+        return self._hands_maps[robot]
 
     def robot_of(self, ids: torch.Tensor) -> tuple[int, ...]:
         """The one robot of a batch's (B, slots) embodiment ids: a postprocessor decodes one robot's actions
@@ -222,17 +230,18 @@ class _HandSpace:
             raise ValueError(f"a batch to decode must come from one robot, got {named}")
         return rows.pop()
 
-    def check_width(self, x: torch.Tensor, robot: tuple[int, ...], key: str, simulator: bool) -> None:
-        """A robot's state or action has the entries of the trained robot."""
-        names = self.robot_map(robot, simulator).names(key)
+    def check_width(self, x: torch.Tensor, robot: tuple[int, ...], joint_map: JointMap, key: str) -> None:
+        """A robot's state or action has the entries of its map."""
+        names = joint_map.names(key)
         if x.shape[-1] != len(names):
+            trained = joint_map is self.maps.get(robot)
             raise ValueError(
-                f"{key} has {x.shape[-1]} entries; the '{self.robot_name(robot)}' robot this policy was "
-                f"trained on has {len(names)}: "
+                f"{key} has {x.shape[-1]} entries; the '{self.robot_name(robot)}' robot "
                 + (
-                    f"{self.body_dim(key)} body entries, then {len(names) - self.body_dim(key)} joints"
-                    if simulator
-                    else ", ".join(names)
+                    f"this policy was trained on has {len(names)}: {', '.join(names)}"
+                    if trained
+                    else f"(named by its hands) has {len(names)}: {self.body_dim(key)} body entries, then "
+                    f"{len(names) - self.body_dim(key)} joints"
                 )
             )
 
@@ -341,11 +350,12 @@ class _HandSpace:
 
 @dataclass(frozen=True)
 class FrameRobot:
-    """Which robot a batch of frames came from: its embodiment ids (B, slots) and whether its entries are
-    the simulator's (spec order) or the trained robot's. What a postprocessor reads from its preprocessor."""
+    """Which robot a batch of frames came from: its embodiment ids (B, slots) and the joint map its entries
+    were read through (None: a merged dataset's frames, whose robots are the trained ones). What a
+    postprocessor reads from its preprocessor."""
 
     ids: torch.Tensor
-    simulator: bool
+    joint_map: JointMap | None
 
 
 @ProcessorStepRegistry.register("opfa_encode_joints")
@@ -386,59 +396,70 @@ class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
         obs = dict(new[TransitionKey.OBSERVATION])
         state = obs[OBS_STATE].float()
         action = new.get(TransitionKey.ACTION)
-        simulator = (hand := obs.pop(OBS_HAND, None)) is not None
         live = not isinstance(action, torch.Tensor)  # a robot's (training frames carry their action)
+        joint_map = None
         if OBS_EMBODIMENT in obs:
             ids = frame_embodiments(obs[OBS_EMBODIMENT], len(self.robots[0])).to(state.device)
 
             def convert(x, key):
                 return self._from_universal(x, ids, key, live)
         else:
-            robot_type = (
-                (new.get(TransitionKey.COMPLEMENTARY_DATA) or {}).get(ROBOT_TYPE) if hand is None else None
+            robot, joint_map = self.robot_of_frames(
+                (new.get(TransitionKey.COMPLEMENTARY_DATA) or {}).get(ROBOT_TYPE)
             )
-            robot = self.robot_slots(hand, robot_type)
             ids = torch.tensor(robot, device=state.device).expand(len(state), -1)
 
             def convert(x, key):
-                return self._from_robot(x, robot, key, simulator, live)
+                return self._from_robot(x, robot, joint_map, key, live)
 
         obs[OBS_STATE] = convert(state, OBS_STATE)
         if isinstance(action, torch.Tensor):
             new[TransitionKey.ACTION] = convert(action.float(), ACTION)
         obs[OBS_EMBODIMENT] = ids
-        self.last_frames = FrameRobot(ids, simulator)
+        self.last_frames = FrameRobot(ids, joint_map)
         new[TransitionKey.OBSERVATION] = obs
         return new
 
-    def robot_slots(self, hand: str | None, robot_type: str | None = None) -> tuple[int, ...]:
-        """The embodiment of each slot of the robot of frames from the simulator of `hand` (`inspire`, or
-        `inspire+xhand` for two arms), or (None) of the robot the pipeline drives: the one it is pinned to,
-        its one robot, or the one a deployed robot's `robot_type` names (`robot_type.py`); a `robot_type`
-        that names other hands than that robot's is refused (`accept_robot_type` overrides)."""
-        name = hand or self.hand
-        names = [self.robot_name(robot) for robot in self.robots]
-        if name is None:
+    def robot_of_frames(self, robot_type: str | None) -> tuple[tuple[int, ...], JointMap]:
+        """The robot a batch of a robot's frames came from (the embodiment of each of its slots) and the map
+        they are read through. A robot named by its hands (`names_its_hands`: the `opfa_sim` rig and env,
+        whose `robot_type` LeRobot passes with each frame, `robot_type.py`) is read in its hands' spec order
+        and units (`hands_map`); another is a trained robot (`trained_robot`)."""
+        if self.names_its_hands(robot_type):
+            robot = self.robot_named(robot_type)
+            return robot, self.hands_map(robot)
+        robot = self.trained_robot(robot_type)
+        return robot, self.trained_map(robot)
+
+    def trained_robot(self, robot_type: str | None = None) -> tuple[int, ...]:
+        """The trained robot the pipeline drives: the one it is pinned to (`hand`), its one robot, or the one
+        a deployed robot's `robot_type` names; a `robot_type` that names other hands than that robot's is
+        refused (`accept_robot_type` overrides)."""
+        if self.hand is not None:
+            robot = self.pinned_robot(self.hand)
+        else:
             typed = self._robots_of_type(robot_type)
-            if len(self.robots) == 1 or len(typed) == 1:
-                robot = tuple(self.robots[0]) if len(self.robots) == 1 else typed[0]
-                self._check_robot_type(robot, robot_type)
-                return robot
-            raise ValueError(
-                f"this policy drives several robots ({', '.join(names)}) and the frames do not "
-                "say which: add observation.embodiment or observation.hand to them, or give the pipeline its "
-                "robot: preprocessor_overrides={'opfa_encode_joints': {'hand': NAME}}"
-            )
-        hands, slots = name.split(HANDS_SEPARATOR), {len(robot) for robot in self.robots} - {1}
-        if name not in names and (len(hands) not in slots or not set(hands) <= set(self.embodiments)):
+            if len(self.robots) != 1 and not typed:
+                self._check_robot_type(None, robot_type)
+            if len(self.robots) != 1 and len(typed) != 1:
+                raise ValueError(
+                    f"this policy drives several robots ({', '.join(map(self.robot_name, self.robots))}) and "
+                    "the frames do not say which: give them the robot's robot_type (LeRobot's robots do), or "
+                    "pin the pipeline to one: `lerobot-opfa policy for-robot --hand NAME`"
+                )
+            robot = tuple(self.robots[0]) if len(self.robots) == 1 else typed[0]
+        self._check_robot_type(robot, robot_type)
+        return robot
+
+    def pinned_robot(self, name: str) -> tuple[int, ...]:
+        """The trained robot `name` names (`inspire`, or `inspire+xhand`, left first)."""
+        names = [self.robot_name(robot) for robot in self.robots]
+        if name not in names:
             raise ValueError(
                 f"this policy drives {', '.join(names)}; it cannot drive hand '{name}' (a policy acts for "
-                "the robots it was trained on, and in the simulator for other pairs of their hands)"
+                "the robots it was trained on, and for a robot named by other pairs of their hands)"
             )
-        robot = self.robot_named(name)
-        if hand is None:
-            self._check_robot_type(robot, robot_type)
-        return robot
+        return self.robot_named(name)
 
     def _robots_of_type(self, robot_type: str | None) -> list[tuple[int, ...]]:
         """The trained robots a deployed robot's `robot_type` says it is."""
@@ -455,35 +476,40 @@ class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
             self.embodiments[e] for e in robot
         }
 
-    def _check_robot_type(self, robot: tuple[int, ...], robot_type: str | None) -> None:
-        """A deployed robot whose `robot_type` names other hands than `robot`'s is refused: its joints would
-        be read as another hand's without a word (a gripper's jaw in metres as another's knuckle in
-        radians). A robot_type that names no hand (`so101_follower`) says nothing either way."""
-        if not robot_type or robot_type == self.accept_robot_type or self._is_of_type(robot, robot_type):
+    def _check_robot_type(self, robot: tuple[int, ...] | None, robot_type: str | None) -> None:
+        """A deployed robot whose `robot_type` names other hands than `robot`'s (None: than any trained
+        robot's) is refused: its joints would be read as another hand's without a word (a gripper's jaw in
+        metres as another's knuckle in radians). A robot_type that names no hand (`so101_follower`) says
+        nothing either way."""
+        if not robot_type or robot_type == self.accept_robot_type:
+            return
+        if robot is not None and self._is_of_type(robot, robot_type):
             return
         named = hands_named_in(robot_type, {*builtin_hands(), *self.embodiments})
         if named:
-            mine = self.robot_name(robot)
+            mine = (
+                self.robot_name(robot) if robot is not None else ", ".join(map(self.robot_name, self.robots))
+            )
             raise ValueError(
                 f"this policy drives '{mine}', but the robot's robot_type '{robot_type}' names hand(s) "
                 f"{', '.join(sorted(named))}: its joints would be read as '{mine}''s; deploy a policy "
                 f"trained on its hand, or if the robot does carry '{mine}', say so: `lerobot-opfa policy "
-                f"for-robot --policy CHECKPOINT --hand {mine} --robot-type {robot_type} --output OUT`"
+                f"for-robot --policy CHECKPOINT --hand {mine if robot else 'NAME'} --robot-type {robot_type} "
+                "--output OUT`"
             )
 
     def _from_robot(
-        self, x: torch.Tensor, robot: tuple[int, ...], key: str, simulator: bool, live: bool
+        self, x: torch.Tensor, robot: tuple[int, ...], joint_map: JointMap, key: str, live: bool
     ) -> torch.Tensor:
         """A robot's state or action -> the policy space (body entries, then each hand slot's part). A live
         robot's joints must be near its hands' limits: a reading in other units would be encoded into a
         state the policy never saw, without a word (NaN is the state guard's, which names the entry)."""
-        self.check_width(x, robot, key, simulator)
-        joint_map = self.robot_map(robot, simulator)
+        self.check_width(x, robot, joint_map, key)
         body, qs = joint_map.split(x, key)
         parts = [body]
         for index, q, slot in zip(robot, qs, joint_map.slots, strict=True):
             if live and q.isfinite().all():
-                source = f"{OBS_STATE} of the robot" + ("" if simulator else f" (through {joint_map.source})")
+                source = f"{OBS_STATE} of the robot (through {joint_map.source})"
                 source += f", its {slot.side} hand" if slot.side else ""
                 self.model(index).check_within_limits(
                     q.reshape(-1, q.shape[-1]), source, LIVE_LIMIT_TOLERANCE
@@ -567,7 +593,7 @@ def paired_frames(step: AbsoluteActionsProcessorStep, batch: int, embodiments: l
         return seen
     robots = [[index] for index in range(len(embodiments))] if encoder is None else encoder.robots
     if len(robots) == 1:
-        return FrameRobot(torch.tensor(robots[0]).expand(batch, -1), simulator=False)
+        return FrameRobot(torch.tensor(robots[0]).expand(batch, -1), joint_map=None)
     raise ValueError(
         "this postprocessor needs the robot its preprocessor saw: run the preprocessor on the observation "
         f"first, and {LOAD_PAIRED}"
@@ -606,7 +632,7 @@ class OpfaDecodeJointsStep(_HandSpace, AbsoluteActionsProcessorStep):
         robot = hands.robot_of(frames.ids)
         wrist, *parts = action.split([hands.body_dim(ACTION), *hands.slot_widths], dim=-1)
         qs = [hands.space.to_joints(hands, index, part) for index, part in zip(robot, parts, strict=True)]
-        new[TransitionKey.ACTION] = hands.robot_map(robot, frames.simulator).join(wrist, qs)
+        new[TransitionKey.ACTION] = (frames.joint_map or hands.trained_map(robot)).join(wrist, qs)
         return new
 
     def get_config(self) -> dict[str, Any]:

@@ -11,8 +11,7 @@ processor overrides); `tests/test_robot_type.py` fails when LeRobot's converters
 
 from __future__ import annotations
 
-ROBOT_TYPE = "robot_type"
-"""The complementary-data key of the robot's type (LeRobot's name for it in an observation batch)."""
+from lerobot_opfa.features import ROBOT_TYPE
 
 
 def register_robot_type() -> None:
