@@ -906,7 +906,7 @@ def test_lerobot_train_then_eval_every_hand(data, tmp_path, monkeypatch):
 
 
 def test_galr_of_a_policy_comes_from_its_flag_its_dataset_or_the_default(data, tmp_path):
-    from lerobot_opfa.policy.processor_opfa import policy_galr
+    from lerobot_opfa.policy.record import policy_galr
 
     def galr_path(dataset: str, flag: str | None = None) -> str:
         config = OpfaConfig(**{**POLICY, "galr_path": flag})

@@ -25,7 +25,7 @@ from lerobot_opfa.policy.configuration_opfa import OpfaConfig
 from lerobot_opfa.policy.diffusion import ConditionalUnet1d, Ddim
 from lerobot_opfa.policy.fast_sampling import FastSampler
 from lerobot_opfa.policy.image_encoder import ImageEncoder
-from lerobot_opfa.policy.processor_opfa import resolve_config
+from lerobot_opfa.policy.record import resolve_config
 from lerobot_opfa.process_group import hold_until_exit
 
 

@@ -50,12 +50,8 @@ from lerobot_opfa.features import OBS_EMBODIMENT
 from lerobot_opfa.policy.configuration_opfa import OpfaConfig
 from lerobot_opfa.policy.deploy import checkpoint_config, write_copy
 from lerobot_opfa.policy.joint_steps import OpfaEncodeJointsStep
-from lerobot_opfa.policy.processor_opfa import (
-    PolicySpaceSteps,
-    hand_entry_names,
-    policy_space_steps,
-    resolve_config,
-)
+from lerobot_opfa.policy.processor_opfa import PolicySpaceSteps, hand_entry_names, policy_space_steps
+from lerobot_opfa.policy.record import resolve_config
 
 STEPS_DIR = Path("meta") / "opfa_steps"
 """Where a latent dataset keeps the steps its frames went through."""
