@@ -21,6 +21,7 @@ from subprocesses import run_command
 from lerobot_opfa import cli
 from lerobot_opfa.envs import demos as demos_module
 from lerobot_opfa.galr import checkpoints
+from lerobot_opfa.hands.registry import load_hand
 
 
 def _cli(*args: str) -> subprocess.CompletedProcess:
@@ -95,6 +96,8 @@ def test_packaged_checkpoints_are_listed_and_load_by_name(capsys):
     assert cli.main(["galr", "list"]) == 0
     out = capsys.readouterr().out
     assert all(name in out for name in checkpoints.PACKAGED)
+    assert "hands: ability, allegro" in out and "dex3" not in out, out  # the paper's 11, without the Dex3
+    assert "lerobot-opfa galr pretrain --init NAME --hands +HAND" in out
     assert checkpoints.load("default").config.hand_names  # a real checkpoint, by name
 
 
@@ -262,3 +265,19 @@ def test_demo_progress_bar_counts_what_it_says(tmp_path, monkeypatch):
     (bar,) = bars
     assert bar.total == bar.n == 3 and "evaluated" in bar.desc
     assert json.loads((tmp_path / "success.json").read_text())["xhand"] == {"successes": 1, "episodes": 2}
+
+
+def test_hands_list_shows_each_hands_joints_with_units_and_limits(capsys):
+    table = _cli_here(capsys, "hands", "list", "--joints")
+    assert table.returncode == 0, table.stderr
+    assert "umi: joint" in table.stdout and "thumb_bend" in table.stdout
+    listed = _cli_here(capsys, "hands", "list", "--joints", "--json")
+    rows = {row["name"]: row for row in json.loads(listed.stdout)}
+    (jaw,) = rows["umi"]["joint_limits"]
+    assert jaw["unit"] == "m" and 0 <= jaw["lower"] < jaw["upper"] < 0.1, jaw
+    inspire = {j["joint"]: j for j in rows["inspire"]["joint_limits"]}
+    assert len(inspire) == rows["inspire"]["dof"] and all(j["unit"] == "rad" for j in inspire.values())
+    model = load_hand("inspire")
+    assert inspire["thumb_bend"]["upper"] == pytest.approx(
+        model.upper[model.joint_names.index("thumb_bend")].item()
+    )

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import json
 import re
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -74,8 +75,16 @@ def load(ref: str | Path) -> Galr:
 
 
 def listing() -> list[dict]:
-    """The packaged checkpoints, for `lerobot-opfa galr list`."""
+    """The packaged checkpoints, for `lerobot-opfa galr list`: each with the hands its registry holds."""
     return [
-        {"name": name, "path": str(packaged_path(name)), "description": description}
+        {
+            "name": name,
+            "path": str(packaged_path(name)),
+            "description": description,
+            "hands": [
+                hand["name"]
+                for hand in json.loads((packaged_path(name) / "config.json").read_text())["hands"]
+            ],
+        }
         for name, (_, description) in PACKAGED.items()
     ]

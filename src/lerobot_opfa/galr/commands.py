@@ -111,6 +111,8 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
 def _list(args: argparse.Namespace) -> int:
     for entry in checkpoints.listing():
         print(f"{entry['name']:<9}{entry['description']}\n{'':<9}{entry['path']}")
+        print(f"{'':<9}hands: {', '.join(entry['hands'])}")
+    print("a hand one lacks is added in minutes: lerobot-opfa galr pretrain --init NAME --hands +HAND")
     return 0
 
 

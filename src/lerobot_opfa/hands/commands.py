@@ -16,6 +16,9 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     )
     listing = hands.add_parser("list", help="the built-in hands")
     listing.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    listing.add_argument(
+        "--joints", action="store_true", help="each hand's joints too: units and limits (loads the models)"
+    )
     listing.set_defaults(func=_list)
 
     hands.add_parser("joints", help="the universal joint table").set_defaults(func=_joints)
@@ -75,6 +78,9 @@ def _list(args: argparse.Namespace) -> int:
                 "description": spec.description,
             }
         )
+    if args.joints:
+        for row in rows:
+            row["joint_limits"] = joint_limits(row["name"])
     if args.json:
         print(json.dumps(rows, indent=2))
         return 0
@@ -82,7 +88,32 @@ def _list(args: argparse.Namespace) -> int:
     for r in rows:
         fingers = ",".join(r["fingers"])
         print(f"{r['name']:<16}{r['kind']:<9}{r['dof']:>4}{r['joints']:>8}  {fingers:<40}{r['source']}")
+    for r in rows if args.joints else []:
+        print(f"\n{r['name']}: {'joint':<28}{'universal':<20}{'unit':<6}{'lower':>9}{'upper':>9}")
+        for j in r["joint_limits"]:
+            row = f"{j['joint']:<28}{j['universal']:<20}{j['unit']:<6}{j['lower']:>9.4g}{j['upper']:>9.4g}"
+            print(" " * (len(r["name"]) + 2) + row)
     return 0
+
+
+def joint_limits(hand: str) -> list[dict]:
+    """A hand's actuated joints as a dataset records them: the spec's name, its universal joint, the unit
+    (`m` for a prismatic joint, else `rad`) and the model's limits."""
+    from lerobot_opfa.hands.registry import load_hand
+
+    model = load_hand(hand)
+    prismatic = model.prismatic_mask.tolist()
+    return [
+        {"joint": name, "universal": universal, "unit": "m" if slides else "rad", "lower": low, "upper": high}
+        for name, universal, slides, low, high in zip(
+            model.joint_names,
+            model.universal_names,
+            prismatic,
+            model.lower.tolist(),
+            model.upper.tolist(),
+            strict=True,
+        )
+    ]
 
 
 def _cloud(args: argparse.Namespace) -> int:
