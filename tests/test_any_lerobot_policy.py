@@ -5,6 +5,7 @@ colour camera on the `opfa_sim` rig (`lerobot-record`), merged, turned into a la
 from __future__ import annotations
 
 import json
+import math
 import os
 import shutil
 import subprocess
@@ -17,6 +18,8 @@ from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from subprocesses import run_command
 
 from lerobot_opfa import cli
+from lerobot_opfa.envs.config import OpfaEnvConfig
+from lerobot_opfa.experiments.failures import object_following
 
 ENV = {**os.environ, "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1", "MUJOCO_GL": "egl"}
 HANDS = ("umi", "inspire")
@@ -108,6 +111,11 @@ def test_a_stock_policy_trains_in_galr_space_and_lerobot_eval_runs_it_on_each_ha
         assert done.returncode == 0, done.stderr[-3000:]
         info = json.loads((tmp_path / "eval" / hand / "eval_info.json").read_text())
         assert info["overall"]["n_episodes"] == 1
+    env = OpfaEnvConfig(
+        task="press_button", hand="umi", obs_type="rgb", episode_length=4, policy_action_width=70
+    )
+    following = object_following(tmp_path / "joints", env, episodes=2, seed=0)  # the stock policy's class
+    assert following["following_episodes"] == 2 and math.isfinite(following["follows_object"]), following
     interleaved_actions(tmp_path / "joints", policy, latent.parent)
 
 

@@ -22,16 +22,17 @@ OUTCOMES = ("success", "never_touched", "touched_failed")
 
 
 def _loaded(model: Path, config: OpfaEnvConfig) -> tuple:
-    """The policy in `model` (a `pretrained_model` folder) with its processors, as `lerobot-eval` loads
-    them, and the env `config` describes, with a function that batches its observations for them."""
+    """The policy in `model` (a `pretrained_model` folder: `opfa`, or a stock policy given joint-space
+    processors by `policy convert-io`, its class from its config) with its processors, as `lerobot-eval`
+    loads them, and the env `config` describes, with a function that batches its observations for them."""
     import gymnasium as gym
     from lerobot.envs.utils import preprocess_observation
-    from lerobot.policies.factory import make_pre_post_processors
+    from lerobot.policies.factory import get_policy_class, make_pre_post_processors
 
     import lerobot_policy_opfa  # noqa: F401  (registers the opfa policy and env types)
-    from lerobot_opfa.policy.modeling_opfa import OpfaPolicy
+    from lerobot_opfa.policy.deploy import checkpoint_config
 
-    policy = OpfaPolicy.from_pretrained(model).eval()
+    policy = get_policy_class(checkpoint_config(Path(model)).type).from_pretrained(model).eval()
     preprocessor, postprocessor = make_pre_post_processors(policy.config, pretrained_path=str(model))
     env_preprocessor, _ = config.get_env_processors()
     kwargs = dict(config.gym_kwargs)
