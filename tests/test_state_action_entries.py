@@ -109,6 +109,28 @@ def test_a_stock_policys_latent_dataset_of_the_ee_delta_robot_keeps_each_keys_bo
     assert state[12:] == action[4:] and state[12] == "z0"  # the jaw's latent, read from each key's entry
 
 
+def test_a_command_read_the_wrong_way_round_is_refused_naming_the_joint(ee_demos, tmp_path, capsys):
+    """The grasp command's scale with its sign flipped (and the offset that keeps it within the jaw's
+    limits): every value is a jaw opening the hand can reach, the jaw commanded shut where the demos opened
+    it."""
+    control = EndEffectorDeltas(load_hand("umi"))
+    travel, middle = control.closed - control.open, (control.closed + control.open) / 2
+    reversed_map = tmp_path / "reversed.yaml"
+    reversed_map.write_text(
+        "hand: umi\n"
+        f"state_joints:\n  gripper: {{joint: {JAW}, scale: {travel / 2!r}, offset: {middle!r}}}\n"
+        f"action_joints:\n  grasp: {{joint: {JAW}, scale: {-travel!r}, offset: {control.closed!r}}}\n"
+    )
+    code = main([
+        "policy", "latent-dataset", "--input", str(ee_demos), "--output", str(tmp_path / "latent"),
+        "--joint-map", str(reversed_map),
+    ])  # fmt: skip
+    error = capsys.readouterr().err.strip().splitlines()[-1]
+    assert code == 2 and f"joint '{JAW}' runs against itself" in error, error
+    assert "('gripper') follows its command ('grasp') with correlation -" in error
+    assert not (tmp_path / "latent").exists()
+
+
 def test_lerobot_train_then_lerobot_eval_on_the_ee_delta_robot_with_no_renaming(
     ee_demos, tmp_path, monkeypatch
 ):

@@ -61,6 +61,9 @@ logger = logging.getLogger(__name__)
 SPAN_FRACTION = 0.1
 """A scaled joint whose frames use less than this fraction of its range, while its entries as recorded
 span more within its limits, is a scale applied to entries already in the spec's units (`check_spans`)."""
+AGAINST_STATE = -0.5
+"""A joint whose commanded value and the state it reaches a frame later correlate below this is read the
+wrong way round in one of the two (`check_senses`): a recorded robot's correlate at about +0.96."""
 
 POSITION_SUFFIX = ".pos"
 """LeRobot's robots name a motor's position entry `<motor>.pos` (what `lerobot-record` writes)."""
@@ -409,6 +412,31 @@ class JointMap:
                         "(under a tenth): check the scale, or that the demos move this joint",
                         self.source, entry, mapped.scale, joint, span, width, key,
                     )  # fmt: skip
+
+    def check_senses(self, state: torch.Tensor, action: torch.Tensor, episodes: torch.Tensor) -> None:
+        """Refuses a joint whose commands (`action`) and the states they lead to (`state` a frame later, in
+        the same episode) run against each other: a scale of the wrong sign in `action_joints` or
+        `state_joints` keeps every value inside the limits, and the policy would learn to open the hand
+        where the demos closed it."""
+        _, states = self.split(state.detach().to("cpu", torch.float64), OBS_STATE)
+        _, actions = self.split(action.detach().to("cpu", torch.float64), ACTION)
+        same = episodes[1:] == episodes[:-1]
+        for slot, q_state, q_action in zip(self.slots, states, actions, strict=True):
+            entries = {
+                key: {j.joint: e for e, j in slot.key_joints(key).items()} for key in (OBS_STATE, ACTION)
+            }
+            for i, joint in enumerate(slot.spec.actuated_joints):
+                reached, commanded = q_state[1:, i][same], q_action[:-1, i][same]
+                if len(reached) < 3 or reached.std() < 1e-9 or commanded.std() < 1e-9:
+                    continue
+                r = float(torch.corrcoef(torch.stack([reached, commanded]))[0, 1])
+                if r < AGAINST_STATE:
+                    raise JointMapError(
+                        f"{self.source}: joint '{joint}' runs against itself: the state it reaches "
+                        f"({entries[OBS_STATE][joint]!r}) follows its command ({entries[ACTION][joint]!r}) "
+                        f"with correlation {r:.2f}; one of the two entries' scale has the wrong sign "
+                        "(flip it and its offset)"
+                    )
 
     def body_names(self, key: str) -> list[str]:
         """`key`'s entries besides the hands' joints (and the dropped ones), in its order: the policy models

@@ -299,10 +299,13 @@ def _hands(source: _Input, galr) -> list[HandModel]:
 
 
 def _check_limits(source: _Input, galr) -> None:
-    """Every state and action frame of the input finite and within its hand's joint limits (before
-    anything is written: latents of values out of range would be cached without a word)."""
+    """Every state and action frame of the input finite and within its hand's joint limits, each joint's
+    commands in the sense of its states (before anything is written: latents of values out of range would be
+    cached without a word)."""
     hands, joint_map = _hands(source, galr), source.layout.joint_maps[0]
-    for key, values in read_columns(source.root, [OBS_STATE, ACTION]).items():
+    columns = read_columns(source.root, [OBS_STATE, ACTION, "episode_index"])
+    episodes = torch.tensor(columns.pop("episode_index"))
+    for key, values in columns.items():
         body, qs = joint_map.split(torch.tensor(values, dtype=torch.float64), key)
         bad = ~body.isfinite()
         if bad.any():
@@ -315,6 +318,7 @@ def _check_limits(source: _Input, galr) -> None:
             side = f", {slot.side} hand" if slot.side else ""
             hand.check_within_limits(q, f"{source.root} ({key}, through {joint_map.source}{side})")
         joint_map.check_spans(torch.tensor(values), key, [(hand.lower, hand.upper) for hand in hands])
+    joint_map.check_senses(torch.tensor(columns[OBS_STATE]), torch.tensor(columns[ACTION]), episodes)
 
 
 CAMERA_DTYPES = ("image", "video")

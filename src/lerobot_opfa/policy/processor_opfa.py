@@ -125,11 +125,13 @@ def _merge_statistics(
 def _frame_statistics(
     config: OpfaConfig, layout: DatasetLayout, encoder: OpfaEncodeJointsStep, root: Path, pooled: torch.Tensor
 ) -> Fitted:
-    columns = [OBS_STATE, ACTION] + ([OBS_EMBODIMENT] if layout.kind == "merged" else [])
-    frames = {k: torch.tensor(v, dtype=torch.float32) for k, v in read_columns(root, columns).items()}
     merged = layout.kind == "merged"
+    columns = [OBS_STATE, ACTION] + ([OBS_EMBODIMENT] if merged else ["episode_index"])
+    frames = {k: torch.tensor(v, dtype=torch.float32) for k, v in read_columns(root, columns).items()}
     if not merged:
+        episodes = frames.pop("episode_index")
         _check_robot_frames(config, layout, encoder, frames, root)
+        layout.joint_maps[0].check_senses(frames[OBS_STATE], frames[ACTION], episodes)
     n = len(frames[OBS_STATE])
     subsample = config.space.uses_galr and not encoder.use_cached_latents and merged
     if subsample and n > STATS_MAX_ENCODED_FRAMES:
