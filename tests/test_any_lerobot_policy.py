@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 import torch
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
-from subprocesses import run_command
+from subprocesses import run_command, run_lerobot_here
 
 from lerobot_opfa import cli
 from lerobot_opfa.envs.config import OpfaEnvConfig
@@ -94,23 +94,29 @@ def trained(request, latent, tmp_path_factory) -> tuple[str, Path]:
 
 
 def test_a_stock_policy_trains_in_galr_space_and_lerobot_eval_runs_it_on_each_hand(
-    latent, trained, tmp_path, capsys
+    latent, trained, tmp_path, capsys, monkeypatch
 ):
     policy, checkpoint = trained
     opfa("policy", "convert-io", "--policy", str(checkpoint), "--output", str(tmp_path / "joints"))
-    assert "--env.policy_action_width=70" in capsys.readouterr().out  # body 6 + z 64
+    assert "reads its action width (70: body + z)" in capsys.readouterr().out  # body 6 + z 64
     steps = json.loads((tmp_path / "joints" / "policy_postprocessor.json").read_text())["steps"]
     assert [s["registry_name"] for s in steps][-3:-1] == ["opfa_unnormalize", "opfa_decode_joints"]
     for hand in HANDS:
         done = lerobot(
             "lerobot_eval", f"--policy.path={tmp_path / 'joints'}", "--policy.device=cpu", "--env.type=opfa",
             "--env.task=press_button", f"--env.hand={hand}", "--env.obs_type=rgb", "--env.episode_length=4",
-            "--env.policy_action_width=70",
             "--eval.n_episodes=1", "--eval.batch_size=1", f"--output_dir={tmp_path / 'eval' / hand}",
         )  # fmt: skip
         assert done.returncode == 0, done.stderr[-3000:]
         info = json.loads((tmp_path / "eval" / hand / "eval_info.json").read_text())
         assert info["overall"]["n_episodes"] == 1
+    wrong = [f"--policy.path={tmp_path / 'joints'}", "--env.type=opfa", "--env.policy_action_width=69"]
+    with pytest.raises(SystemExit):
+        run_lerobot_here("lerobot_eval", wrong, monkeypatch)
+    refused = capsys.readouterr().err.strip().splitlines()[-1]
+    assert (
+        refused.startswith("error: `env.policy_action_width`: 69, but the policy at") and "70 wide" in refused
+    )
     env = OpfaEnvConfig(
         task="press_button", hand="umi", obs_type="rgb", episode_length=4, policy_action_width=70
     )

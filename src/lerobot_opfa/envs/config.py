@@ -3,10 +3,12 @@ LeRobot adapter on top of the simulator (`env`, `tasks`)."""
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import gymnasium as gym
-from lerobot.configs import FeatureType, PolicyFeature
+from lerobot.configs import FeatureType, PolicyFeature, parser
 from lerobot.envs.configs import EnvConfig
 from lerobot.processor import EnvTransition, PolicyProcessorPipeline, ProcessorStep, TransitionKey
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGES, OBS_STATE
@@ -28,6 +30,10 @@ from lerobot_opfa.features import OBS_POINTCLOUD, ROBOT_TYPE
 from lerobot_opfa.flags import flag
 from lerobot_opfa.hands.registry import load_spec
 
+POSTPROCESSOR = "policy_postprocessor.json"
+DECODE_STEP = "opfa_decode_joints"
+"""The registry name of the step that gives a converted policy's actions as the robot's joints."""
+
 
 def gym_id(task: str) -> str:
     return f"opfa/{task}-v0"
@@ -42,6 +48,20 @@ for _task in ALL_TASKS.values():
             max_episode_steps=_task.episode_steps,
             kwargs={"task": _task.name},
         )
+
+
+def converted_action_width(policy_path: str | None) -> int | None:
+    """The action width of the local checkpoint at `policy_path` if it is a stock policy given joint-space
+    processors by `policy convert-io` (its actions are body + z, not the env's joints), else None. Read as
+    LeRobot's own configs read `--policy.path` (`parser.get_path_arg`), from its files: the env config is
+    parsed before the policy is loaded."""
+    folder = Path(policy_path) if policy_path else None
+    if folder is None or not (folder / "config.json").is_file() or not (folder / POSTPROCESSOR).is_file():
+        return None
+    config, post = (json.loads((folder / name).read_text()) for name in ("config.json", POSTPROCESSOR))
+    if config.get("type") == "opfa" or not any(s.get("registry_name") == DECODE_STEP for s in post["steps"]):
+        return None
+    return int(config["output_features"][ACTION]["shape"][0])
 
 
 @EnvConfig.register_subclass("opfa")
@@ -69,7 +89,8 @@ class OpfaEnvConfig(EnvConfig):
     policy_action_width: int | None = None
     """The action width of a policy whose postprocessor gives this env its joints, when it differs (a stock
     policy in GaLR space: body + z). LeRobot's lerobot-eval builds even a pretrained policy's action
-    output at the env's declared action width (policies/factory.make_policy), so the env declares this one."""
+    output at the env's declared action width (policies/factory.make_policy), so the env declares this one;
+    for a local checkpoint at `--policy.path` it is read from there (`converted_action_width`)."""
     render_width: int = 320
     render_height: int = 240
     features: dict[str, PolicyFeature] = field(default_factory=dict)
@@ -107,7 +128,15 @@ class OpfaEnvConfig(EnvConfig):
                 state = action = len(WRIST_JOINTS) + len(spec.joints)
         if self.policy_action_width is not None and self.policy_action_width < 1:
             raise ValueError(f"--env.policy_action_width: a positive width, not {self.policy_action_width}")
-        action = self.policy_action_width or action
+        policy_path = parser.get_path_arg("policy")
+        converted = converted_action_width(policy_path)
+        if None not in (converted, self.policy_action_width) and converted != self.policy_action_width:
+            with flag("env.policy_action_width"):
+                raise ValueError(
+                    f"{self.policy_action_width}, but the policy at {policy_path} acts {converted} wide (its "
+                    "body + z): leave the flag out, and the width is read from the checkpoint"
+                )
+        action = self.policy_action_width or converted or action
         self.features = {ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(action,))}
         self.features["agent_pos"] = PolicyFeature(type=FeatureType.STATE, shape=(state,))
         self.features_map = {ACTION: ACTION, "agent_pos": OBS_STATE}

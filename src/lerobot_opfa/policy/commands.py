@@ -65,8 +65,8 @@ def _convert(args: argparse.Namespace) -> None:
 
     out, width = convert_checkpoint(args.policy, args.output, args.dataset, args.hand)
     print(
-        f"wrote {out}: the policy of {args.policy} with a joint-space interface; in lerobot-eval with "
-        f"--env.type=opfa give it --env.policy_action_width={width} (its actions are body + z)"
+        f"wrote {out}: the policy of {args.policy} with a joint-space interface; lerobot-eval with "
+        f"--env.type=opfa reads its action width ({width}: body + z) from it"
     )
 
 
