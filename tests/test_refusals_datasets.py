@@ -271,3 +271,16 @@ def test_a_merge_of_inputs_that_share_no_camera_is_refused(tmp_path, capsys):
     assert (
         cli.main(["dataset", "merge", "--inputs", *map(str, numeric), "--output", str(tmp_path / "n")]) == 0
     )
+
+
+def test_a_map_that_fits_no_input_names_its_missing_entry_and_the_closest(tmp_path, capsys):
+    demos = write_synthetic_dataset(tmp_path / "inspire", "inspire", n_points=N_POINTS)
+    names = LeRobotDatasetMetadata("local/inspire", root=demos).features[OBS_STATE]["names"]
+    entries = {name: {"joint": name} for name in names[len(WRIST_NAMES) :]}
+    entries["thumb_benx"] = entries.pop("thumb_bend")
+    typo = tmp_path / "typo.yaml"
+    typo.write_text(json.dumps({"hand": "inspire", "joints": entries}))  # JSON is YAML
+    merge = ["dataset", "merge", "--inputs", str(demos), "--output", str(tmp_path / "out"), "--joint-maps"]
+    assert cli.main([*merge, str(typo)]) == 2
+    error = capsys.readouterr().err.strip().splitlines()[-1]
+    assert f"in {demos}, the closest, entry 'thumb_benx' (did you mean 'thumb_bend'?)" in error, error

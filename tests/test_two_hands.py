@@ -231,6 +231,19 @@ def test_hand_fields_beside_slots_are_told_to_go_into_a_slot(robots):
         JointMap.from_dict({"slots": slots, "robot": "g1"}, "typo.yaml")
 
 
+def test_a_mistyped_entry_in_a_map_given_to_a_merge_is_named_with_the_closest_entry(robots, tmp_path, capsys):
+    name = "g1_inspire_arms_first"
+    typo = tmp_path / "typo.yaml"
+    typo.write_text((robots / f"{name}.yaml").read_text().replace("kLeftHandIndex:", "kLeftHandIndx:"))
+    merge = ["dataset", "merge", "--inputs", str(robots / name), "--output", str(tmp_path / "out")]
+    assert cli.main([*merge, "--joint-maps", str(typo)]) == 2
+    error = capsys.readouterr().err.strip().splitlines()[-1]
+    assert (
+        f"joint map {typo} would fit it, but for entry 'kLeftHandIndx' (did you mean 'kLeftHandIndex'?)"
+        in error
+    )
+
+
 def _round_trip(pre, post, frames, rows) -> tuple[torch.Tensor, torch.Tensor, dict]:
     transition = batch_to_transition(batch_of(frames, rows))
     original = transition[TransitionKey.ACTION].clone()

@@ -10,6 +10,7 @@ hold. Point clouds stay flattened (N*3,) so LeRobot's own dataset tools keep wor
 
 from __future__ import annotations
 
+import difflib
 import json
 import logging
 from dataclasses import dataclass
@@ -82,7 +83,16 @@ def _open(root: Path, hands: list[str] | None, joint_maps: list[JointMap], bound
             f"to it: --joint-maps {root}=MAP"
         )
     joint_map = fitting[0] if fitting else None
-    layout = read_layout(meta.features, meta.robot_type, root, hands, joint_map)
+    try:
+        layout = read_layout(meta.features, meta.robot_type, root, hands, joint_map)
+    except ValueError:
+        near = min(joint_maps, key=lambda m: len(_absent(m, names)), default=None) if not fitting else None
+        if near is None or len(_absent(near, names)) > len(near.key_joints(OBS_STATE)) / 2:
+            raise
+        raise ValueError(
+            f"{root}: joint map {near.source} would fit it, but for {_absent(near, names, say=True)}; "
+            "correct the map's entries"
+        ) from None
     if layout.kind != "native":
         raise ValueError(f"{root} is already a merged dataset; merge the per-hand datasets it came from")
     if layout.action_body_names is not None:
@@ -91,6 +101,19 @@ def _open(root: Path, hands: list[str] | None, joint_maps: list[JointMap], bound
             f"{layout.wrist_names}; a merge holds one body for both: train on it alone (--policy.joint_map)"
         )
     return _Input(root, meta, layout)
+
+
+def _absent(joint_map: JointMap, names: set[str], say: bool = False) -> list[str] | str:
+    """The state entries of `joint_map` missing from `names`; with `say`, each with the closest entry there
+    is, as one phrase."""
+    absent = sorted(set(joint_map.key_joints(OBS_STATE)) - names)
+    if not say:
+        return absent
+    said = []
+    for entry in absent:
+        near = difflib.get_close_matches(entry, sorted(names), n=1)
+        said.append(f"entry {entry!r}" + (f" (did you mean {near[0]!r}?)" if near else " (in no entry)"))
+    return ", ".join(said)
 
 
 def _passthrough(inputs: list[_Input]) -> dict[str, dict]:
@@ -156,9 +179,17 @@ def merge_datasets(
     roots = check_outside_inputs(inputs, output)
     bound, maps = _maps_per_input(roots, joint_maps)
     opened = [_open(root, hands, maps, bound.get(root)) for root in roots]
-    unused = [m.source for m in maps if not any(i.layout.joint_maps[0].source == m.source for i in opened)]
+    unused = [m for m in maps if not any(i.layout.joint_maps[0].source == m.source for i in opened)]
     if unused:
-        raise ValueError(f"joint map(s) {unused} fit none of the inputs (their entries are in no input)")
+        names = {i.root: set(feature_names(i.meta.features, OBS_STATE)) for i in opened}
+        closest = {m.source: min(names, key=lambda root: len(_absent(m, names[root]))) for m in unused}
+        raise ValueError(
+            "; ".join(
+                f"joint map {m.source} fits none of the inputs: in {closest[m.source]}, the closest, "
+                f"{_absent(m, names[closest[m.source]], say=True)}"
+                for m in unused
+            )
+        )
     wrist, sides = opened[0].layout.wrist_names, _sides(opened[0])
     fps = opened[0].meta.fps
     for i in opened:
