@@ -241,6 +241,7 @@ def test_a_policy_trained_on_a_user_hand_acts_after_the_checkpoint_moved_and_the
     from lerobot_opfa.policy.modeling_opfa import OpfaPolicy
 
     spec = user_shadow_spec
+    name = load_hand(spec).name
     demos, merged = tmp_path / "demos", tmp_path / "merged"
     assert cli.main(["sim", "demos", "--task", "press_button", "--hand", str(spec), "--episodes", "2",
                      "--n-points", "16", "--output-dir", str(demos)]) == 0  # fmt: skip
@@ -272,6 +273,13 @@ def test_a_policy_trained_on_a_user_hand_acts_after_the_checkpoint_moved_and_the
     assert action.shape == (1, frame["action"].shape[0]) and torch.isfinite(action).all()
     unpacked = list((tmp_path / "hf_home" / "lerobot_opfa" / "hands").glob("*/spec.yaml"))
     assert len(unpacked) == 1 and list(unpacked[0].parent.glob("model/stls/hand/*.stl"))
+    # lerobot-eval finds the hand by its name in the checkpoint it evaluates
+    run_lerobot_here("lerobot_eval", [
+        f"--policy.path={moved}", "--env.type=opfa", "--env.task=press_button", f"--env.hand={name}",
+        "--env.n_points=16", "--env.episode_length=2", "--eval.n_episodes=1", "--eval.batch_size=1",
+        f"--output_dir={tmp_path / 'eval'}",
+    ], monkeypatch)  # fmt: skip
+    assert json.loads((tmp_path / "eval" / "eval_info.json").read_text())["overall"]["n_episodes"] == 1
 
 
 def test_packaged_galr_checkpoints_find_their_builtin_hands_by_name_not_by_the_recorded_paths():

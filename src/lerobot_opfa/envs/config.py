@@ -28,6 +28,7 @@ from lerobot_opfa.envs.scene import WRIST_JOINTS
 from lerobot_opfa.envs.tasks import ENV_STATE_DIM
 from lerobot_opfa.features import OBS_POINTCLOUD, ROBOT_TYPE
 from lerobot_opfa.flags import flag
+from lerobot_opfa.hands.bundle import carried_hand
 from lerobot_opfa.hands.registry import load_spec
 
 POSTPROCESSOR = "policy_postprocessor.json"
@@ -71,7 +72,9 @@ class OpfaEnvConfig(EnvConfig):
     for the observation and action layouts."""
 
     task: str | None = "lift"
-    hand: str = "leap"  # a built-in hand name or a path to a spec.yaml; two-hand tasks: left+right
+    hand: str = "leap"
+    """A built-in hand's name, a spec.yaml path, or the name of a user hand the checkpoint at `--policy.path`
+    carries; two-hand tasks: left+right."""
     regions: str = "all"  # comma-separated region names (`lerobot-opfa sim regions`), or "all"
     obs_type: str = "pointcloud"  # pointcloud | state | pointcloud_state | rgb | pointcloud_rgb
     pointcloud_source: str = "depth"  # depth (simulated cameras) | geometry (sampled, faster)
@@ -99,6 +102,9 @@ class OpfaEnvConfig(EnvConfig):
     def __post_init__(self) -> None:
         with flag("env.task"):
             check_any_task(self.task)
+        policy_path = parser.get_path_arg("policy")
+        hands = self.hand.split(HANDS_SEPARATOR)
+        self.hand = HANDS_SEPARATOR.join(carried_hand(hand, policy_path) for hand in hands)
         with flag("env.regions"):
             parse_regions(self.regions)
         with flag("env.obs_type"):
@@ -128,7 +134,6 @@ class OpfaEnvConfig(EnvConfig):
                 state = action = len(WRIST_JOINTS) + len(spec.joints)
         if self.policy_action_width is not None and self.policy_action_width < 1:
             raise ValueError(f"--env.policy_action_width: a positive width, not {self.policy_action_width}")
-        policy_path = parser.get_path_arg("policy")
         converted = converted_action_width(policy_path)
         if None not in (converted, self.policy_action_width) and converted != self.policy_action_width:
             with flag("env.policy_action_width"):

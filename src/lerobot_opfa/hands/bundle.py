@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import hashlib
 import io
+import json
 import os
 import re
 import tarfile
@@ -22,6 +23,8 @@ import yaml
 from lerobot_opfa.hands.spec import HandSpec
 from lerobot_opfa.yaml_files import read_yaml
 
+USER_HAND = "user_hand."
+"""State-dict key prefix of a user hand's archive in a checkpoint's processor state, by the hand's name."""
 SPEC = "spec.yaml"
 MODEL = "model"
 """The archive's folder of the model file and what it reads."""
@@ -73,6 +76,29 @@ def unpack(data: bytes) -> Path:
                 raise
             _remove(partial)
     return folder / SPEC
+
+
+def carried_hand(name: str, checkpoint: str | None) -> str:
+    """`name` itself, or where it is neither a built-in hand nor a spec path, the user hand of that name the
+    local checkpoint folder `checkpoint` carries in its processors' state, unpacked: a checkpoint moved to
+    another machine brings its hand, whose spec is not there."""
+    from lerobot_opfa.hands.registry import builtin_hands
+
+    folder = Path(checkpoint) if checkpoint else None
+    if name in builtin_hands() or Path(name).exists() or folder is None:
+        return name
+    from safetensors import safe_open
+
+    for processor in ("policy_preprocessor.json", "policy_postprocessor.json"):
+        if not (folder / processor).is_file():
+            continue
+        for step in json.loads((folder / processor).read_text()).get("steps", []):
+            state = folder / step.get("state_file", "")
+            if step.get("state_file") and state.is_file():
+                with safe_open(state, "pt") as tensors:
+                    if f"{USER_HAND}{name}" in tensors.keys():
+                        return str(unpack(tensors.get_tensor(f"{USER_HAND}{name}").numpy().tobytes()))
+    return name
 
 
 def _remove(folder: Path) -> None:

@@ -42,7 +42,7 @@ from lerobot_opfa.datasets.joint_map import HANDS_SEPARATOR, SIDES, JointMap, ar
 from lerobot_opfa.features import OBS_EMBODIMENT, OBS_POINTCLOUD, ROBOT_TYPE, frame_embodiments
 from lerobot_opfa.galr.frozen import encode_joints, encode_universal, relocate_hand
 from lerobot_opfa.galr.model import Galr
-from lerobot_opfa.hands.bundle import pack, unpack
+from lerobot_opfa.hands.bundle import USER_HAND, pack, unpack
 from lerobot_opfa.hands.model import LIVE_LIMIT_TOLERANCE, HandModel
 from lerobot_opfa.hands.registry import builtin_hands, load_hand, load_spec
 from lerobot_opfa.hands.universal import UNIVERSAL_JOINT_NAMES
@@ -51,8 +51,6 @@ from lerobot_opfa.policy.latent_cache import LatentCache
 
 LOAD_PAIRED = "load the two with lerobot's make_pre_post_processors(..., pretrained_path=...): it pairs them"
 """How a postprocessor gets its preprocessor's encode step, the one it reads the robot from."""
-USER_HAND = "user_hand."
-"""State-dict key prefix of a user hand's archive (`hands.bundle`), by the hand's name."""
 
 
 @ProcessorStepRegistry.register("opfa_pointcloud_batch")
