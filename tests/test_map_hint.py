@@ -20,7 +20,7 @@ from lerobot_opfa import cli
 from lerobot_opfa.datasets.io import read_columns
 from lerobot_opfa.datasets.joint_map import JointMap
 from lerobot_opfa.datasets.layout import JointNameError, identify_hand, read_layout
-from lerobot_opfa.datasets.map_hint import units_from_range
+from lerobot_opfa.datasets.map_hint import motor_units, sense_undecided, units_from_range
 from lerobot_opfa.datasets.synthetic import write_synthetic_dataset
 from lerobot_opfa.hands import load_hand
 from lerobot_opfa.hands.model import LIMIT_TOLERANCE
@@ -158,3 +158,11 @@ def test_entries_in_degrees_or_0_to_1000_get_the_scale_into_the_joint_limits(rob
             if dataset == "ghand_degrees":
                 assert mapped["scale"] == pytest.approx(math.pi / 180, rel=1e-5) and mapped["offset"] == 0
         assert len(proposed["joints"]) == len(model.joint_names)
+
+
+def test_a_sense_or_units_the_recorded_ranges_cannot_decide_are_told_apart():
+    assert sense_undecided((-0.3, 0.4), (-1.0, 1.0))  # a mirrored joint reads either way
+    assert not sense_undecided((0.1, 1.2), (0.0, 1.57)) and not sense_undecided((0.0, -1.5), (0.0, 1.5))
+    assert not sense_undecided((0.2, 0.2), (-1.0, 1.0))  # an entry that never moves says nothing
+    assert motor_units([(0.25, 1.0), (0.0, 0.7)])  # every entry within 0..1, held at an end
+    assert not motor_units([(0.25, 0.9), (0.1, 0.7)]) and not motor_units([(0.0, 1.4)])

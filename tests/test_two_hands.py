@@ -422,6 +422,29 @@ def test_a_g1_with_dex3_hands_is_recorded_in_the_vendors_senses_and_the_hint_pro
         assert torch.allclose(q_proposed, q_written), "the proposal reads each hand as the written map does"
 
 
+def test_the_hint_on_a_g1_with_inspire_hands_proposes_motor_units_and_flags_their_sense(robots):
+    """Unitree's converters record the G1's Inspire motors in 0..1 with 1 = open: the ranges say 0..1 motor
+    units (or radians), never which end is open. The hint scales each entry onto its joint's range and says
+    on the line the other sense, which the written map uses."""
+    name = "g1_inspire_arms_first"
+    meta = LeRobotDatasetMetadata(f"local/{name}", root=robots / name)
+    message = hint(meta.features, meta.robot_type, robots / name)
+    assert "lines marked 'check': the recorded ranges cannot decide their sense or units" in message
+    model, maps = load_hand("inspire"), proposed_maps(message)
+    for side in SIDES:
+        for mapped in maps[side]["joints"].values():
+            i = model.joint_names.index(mapped["joint"])
+            lower, upper = float(model.lower[i]), float(model.upper[i])
+            assert mapped["scale"] == pytest.approx(upper - lower) and mapped["offset"] == pytest.approx(
+                lower
+            )
+    (index,) = [line for line in message.splitlines() if line.strip().startswith("kLeftHandIndex:")]
+    upper = float(model.upper[model.joint_names.index("index_mcp_flex")])
+    assert "# check: a 0..1 motor command" in index and f"scale: {-upper:.6g}, offset: {upper:.6g}" in index
+    written = g1_inspire_slot("left")["joints"]["kLeftHandIndex"]
+    assert (written["scale"], written["offset"]) == pytest.approx((-upper, upper))  # the flagged sense
+
+
 def test_a_merge_with_a_galr_that_lacks_the_robots_hand_says_how_to_add_it(robots, tmp_path, capsys):
     """The packaged GaLRs hold the paper's 11 hands, not the Dex3: a G1 + Dex3 merge names the command that
     adds it, in one line."""

@@ -40,6 +40,10 @@ UNITS_FACTOR = 3.0
 """A recorded range this many times wider than a joint's range is in other units (degrees, 0..1000)."""
 
 DEGREE = math.pi / 180
+MOTOR_END = 1e-6
+"""How near 0 or 1 a 0..1 motor command held at an end records."""
+CHECK = "check"
+"""The word that marks a hint's line whose sense or units the recorded ranges cannot decide."""
 
 
 def _words(name: str) -> list[str]:
@@ -173,6 +177,21 @@ def units_from_range(
     return scale, limits[0] - scale * low
 
 
+def sense_undecided(recorded: tuple[float, float], limits: tuple[float, float]) -> bool:
+    """Whether a moving entry's recorded range fits the joint's limits both as it is and negated: the ranges
+    cannot tell the joint's sense (a mirrored left hand's entries may read either way)."""
+    return recorded[1] > recorded[0] and fits_limits(recorded, limits) and fits_limits(recorded, limits, -1.0)
+
+
+def motor_units(recorded: list[tuple[float, float]]) -> bool:
+    """Whether every entry of a hand lies within 0..1 and reaches one end of it: a 0..1 motor command held
+    at an end (Unitree's converters record the G1's Inspire so, 1 = open), or radians that happen to lie
+    there. The ranges tell neither that apart nor which end is open: a hint proposes motor units and says
+    both on each line."""
+    ends = [low <= MOTOR_END or high >= 1.0 - MOTOR_END for low, high in recorded]
+    return bool(recorded) and all(fits_limits(r, (0.0, 1.0)) for r in recorded) and all(ends)
+
+
 def map_to_write(
     sides: dict[str | None, tuple[list[str], HandSpec, list[HandSpec]]],
     ranges: dict[str, tuple[float, float]] | None = None,
@@ -188,6 +207,8 @@ def map_to_write(
             "# scale/offset: inferred from the recorded ranges (meta/stats.json) and the joint limits; "
             "check them, and each sign"
         )
+    if any(CHECK in line for hand, _ in hands.values() for line in hand):
+        lines.append(f"# lines marked '{CHECK}': the recorded ranges cannot decide their sense or units")
     if None in hands:
         return "\n".join(lines + hands[None][0])
     lines.append("slots:  # one per hand")
@@ -205,12 +226,26 @@ def _hand_lines(
     """The `hand` and `joints` lines of one hand's map, and whether any joint has inferred units."""
     pairs = _pairs(names, spec)
     limits = _limits(spec) if ranges else {}
-    units = {j: units_from_range(ranges[e], limits[j]) for j, e in pairs.items() if ranges and e in ranges}
+    recorded = {j: ranges[e] for j, e in pairs.items() if ranges and e in ranges}
+    motor = motor_units(list(recorded.values()))
+    units = {
+        j: (limits[j][1] - limits[j][0], limits[j][0]) if motor else units_from_range(r, limits[j])
+        for j, r in recorded.items()
+    }
     others = f"  # or {', '.join(a.name for a in alternatives)}: as close" if alternatives else ""
     lines = [f"hand: {hand_ref(spec)}{others}", "joints:"]
     for joint, entry in pairs.items():
         scaled = units.get(joint)
         value = f"{{joint: {joint}, scale: {scaled[0]:.6g}, offset: {scaled[1]:.6g}}}" if scaled else joint
+        if motor and scaled:
+            value += (
+                f"  # {CHECK}: a 0..1 motor command with 0 at the lower limit; if 1 is there instead (an "
+                f"open hand's 1), scale: {-scaled[0]:.6g}, offset: {limits[joint][1]:.6g}; radians: no scale"
+            )
+        elif scaled is None and joint in recorded and sense_undecided(recorded[joint], limits[joint]):
+            value += (
+                f"  # {CHECK}: the recorded range fits this joint either way round (scale -1 if mirrored)"
+            )
         lines.append(f"  {entry}: {value}")
     missing = [j for j in spec.joints if j not in pairs]
     if missing:
