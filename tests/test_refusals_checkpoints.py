@@ -150,6 +150,15 @@ def test_a_mistyped_hand_in_lerobot_eval_is_one_line_naming_the_flag_and_the_clo
     assert line.startswith("error: `env.hand`: unknown hand 'inspyre' (did you mean 'inspire'?)"), line
 
 
+def test_ee_delta_control_for_a_joints_checkpoint_in_lerobot_eval_names_the_flag(
+    trained, capsys, monkeypatch
+):
+    policy = trained / "checkpoints" / "last" / "pretrained_model"
+    argv = [f"--policy.path={policy}", "--env.type=opfa", "--env.hand=umi", "--env.control=ee_delta"]
+    line = _lerobot_refused("lerobot_eval", argv, capsys, monkeypatch)[-1]
+    assert line.startswith("error: `env.control`: ee_delta, but the policy at") and "at joints" in line, line
+
+
 def test_a_mistyped_hand_in_lerobot_rollout_is_refused_cause_first(trained, tmp_path, capsys, monkeypatch):
     policy = trained / "checkpoints" / "last" / "pretrained_model"
     argv = ["--robot.type=opfa_sim", "--robot.hand=inspyre", f"--robot.calibration_dir={tmp_path}",

@@ -18,7 +18,9 @@ from subprocesses import run_command, run_lerobot_here
 
 from lerobot_opfa.cli import main
 from lerobot_opfa.datasets.joint_map import JointMap, JointMapError
+from lerobot_opfa.envs.config import OpfaEnvConfig
 from lerobot_opfa.envs.control import EE_ACTION_NAMES, EE_STATE_NAMES, EndEffectorDeltas
+from lerobot_opfa.flags import FlagError
 from lerobot_opfa.hands.registry import load_hand
 
 ENV = {**os.environ, "MUJOCO_GL": "egl", "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1"}
@@ -162,12 +164,16 @@ def test_lerobot_train_then_lerobot_eval_on_the_ee_delta_robot_with_no_renaming(
         "--policy.device=cpu", f"--output_dir={evaluated}",
     ], monkeypatch)  # fmt: skip
     assert json.loads((evaluated / "eval_info.json").read_text())["overall"]["n_episodes"] == 1
+    monkeypatch.setattr(
+        sys, "argv", ["lerobot-eval", f"--policy.path={checkpoint}"]
+    )  # as lerobot-eval reads it
+    with pytest.raises(
+        FlagError, match=r"`env.control`: joints, but the policy at .* --env.control=ee_delta"
+    ):
+        OpfaEnvConfig(task="press_button", hand="umi")  # the control left at its default
 
 
 def test_ee_delta_control_of_a_dexterous_hand_is_one_line_naming_the_flag():
-    from lerobot_opfa.envs.config import OpfaEnvConfig
-    from lerobot_opfa.flags import FlagError
-
     with pytest.raises(FlagError, match=r"`env.control`: control ee_delta drives a gripper .* 'leap' has 16"):
         OpfaEnvConfig(hand="leap", control="ee_delta")
     with pytest.raises(FlagError, match="unknown control 'delta'; valid controls: joints, ee_delta"):

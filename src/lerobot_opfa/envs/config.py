@@ -31,9 +31,9 @@ from lerobot_opfa.flags import flag
 from lerobot_opfa.hands.bundle import carried_hand
 from lerobot_opfa.hands.registry import load_spec
 
-POSTPROCESSOR = "policy_postprocessor.json"
-DECODE_STEP = "opfa_decode_joints"
-"""The registry name of the step that gives a converted policy's actions as the robot's joints."""
+PREPROCESSOR, POSTPROCESSOR = "policy_preprocessor.json", "policy_postprocessor.json"
+ENCODE_STEP, DECODE_STEP = "opfa_encode_joints", "opfa_decode_joints"
+"""The registry names of the steps that read a robot's entries and give its action entries back."""
 
 
 def gym_id(task: str) -> str:
@@ -51,18 +51,47 @@ for _task in ALL_TASKS.values():
         )
 
 
+def _checkpoint_file(policy_path: str | None, name: str) -> dict | None:
+    """A JSON file of the local checkpoint folder at `policy_path` (what `--policy.path` names, read as
+    LeRobot's own configs read it, `parser.get_path_arg`: the env config is parsed before the policy is
+    loaded), or None."""
+    path = Path(policy_path) / name if policy_path else None
+    return json.loads(path.read_text()) if path is not None and path.is_file() else None
+
+
 def converted_action_width(policy_path: str | None) -> int | None:
-    """The action width of the local checkpoint at `policy_path` if it is a stock policy given joint-space
-    processors by `policy convert-io` (its actions are body + z, not the env's joints), else None. Read as
-    LeRobot's own configs read `--policy.path` (`parser.get_path_arg`), from its files: the env config is
-    parsed before the policy is loaded."""
-    folder = Path(policy_path) if policy_path else None
-    if folder is None or not (folder / "config.json").is_file() or not (folder / POSTPROCESSOR).is_file():
+    """The action width of the checkpoint at `policy_path` if it is a stock policy given joint-space
+    processors by `policy convert-io` (its actions are body + z, not the env's joints), else None."""
+    config, post = _checkpoint_file(policy_path, "config.json"), _checkpoint_file(policy_path, POSTPROCESSOR)
+    if config is None or post is None or config.get("type") == "opfa":
         return None
-    config, post = (json.loads((folder / name).read_text()) for name in ("config.json", POSTPROCESSOR))
-    if config.get("type") == "opfa" or not any(s.get("registry_name") == DECODE_STEP for s in post["steps"]):
+    if not any(step.get("registry_name") == DECODE_STEP for step in post["steps"]):
         return None
     return int(config["output_features"][ACTION]["shape"][0])
+
+
+def trained_state_names(policy_path: str | None) -> list[list[str]]:
+    """The state entries of each robot the checkpoint at `policy_path` was trained on (none known: [])."""
+    pre = _checkpoint_file(policy_path, PREPROCESSOR) or {"steps": []}
+    steps = [step for step in pre["steps"] if step.get("registry_name") == ENCODE_STEP]
+    return [list(m["state_names"]) for step in steps for m in step.get("config", {}).get("joint_maps", [])]
+
+
+def check_control_against(control: str, policy_path: str | None) -> None:
+    """A control whose entries are not those of any robot the checkpoint at `policy_path` was trained on is
+    the flag's mistake: said here, not as a width the policy's preprocessor cannot read."""
+    trained = trained_state_names(policy_path)
+    end_effector = [names == list(EE_STATE_NAMES) for names in trained]
+    if control == "ee_delta" and trained and not any(end_effector):
+        raise ValueError(
+            f"ee_delta, but the policy at {policy_path} was trained on robots of the wrist pose and joints "
+            f"({', '.join(trained[0][:3])}, ...): leave --env.control at joints"
+        )
+    if control == "joints" and trained and all(end_effector):
+        raise ValueError(
+            f"joints, but the policy at {policy_path} was trained on the ee_delta robot's entries "
+            f"({', '.join(EE_STATE_NAMES[:3])}, ...): --env.control=ee_delta"
+        )
 
 
 @EnvConfig.register_subclass("opfa")
@@ -128,6 +157,7 @@ class OpfaEnvConfig(EnvConfig):
                 spec = load_spec(*task_hands(self.task, self.hand))
             with flag("env.control"):
                 check_control(self.control, spec.name, len(spec.joints))
+                check_control_against(self.control, policy_path)
             if self.control == "ee_delta":
                 state, action = len(EE_STATE_NAMES), len(EE_ACTION_NAMES)
             else:
