@@ -320,3 +320,14 @@ def test_a_learnability_run_keeps_the_cells_another_run_recorded_meanwhile(tmp_p
     runs = bench.record(out, {**cell, "successes": 50})
     assert sorted((r["action_space"], r["successes"]) for r in runs) == [("galr", 50), ("raw", 50)]
     assert json.loads(out.read_text()) == runs
+
+
+def test_a_second_experiment_into_a_folder_in_use_is_refused_naming_the_run(tmp_path, capsys):
+    from lerobot_opfa.output_folders import used_alone
+
+    work = tmp_path / "work"
+    with used_alone(work, "--output-dir"):  # the first run, in this process
+        code = main(["experiment", "spatial", "--scale", "toy", "--output-dir", str(work)])
+    error = capsys.readouterr().err
+    assert code == 2 and f"--output-dir {work} is in use by another run (pid {os.getpid()})" in error, error
+    assert not work.exists()  # the second run wrote nothing

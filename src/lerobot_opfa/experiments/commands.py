@@ -28,6 +28,7 @@ from lerobot_opfa.experiments.jobs import CONDITIONS, Workspace, galr_identity, 
 from lerobot_opfa.experiments.report import summarize, write_report
 from lerobot_opfa.experiments.scales import SCALES, Scale, get_scale
 from lerobot_opfa.flags import non_negative_int, positive_int
+from lerobot_opfa.output_folders import used_alone
 
 TITLES = {
     "spatial": "Spatial generalisation: success in regions covered only by the other embodiments' demos",
@@ -123,6 +124,14 @@ def run(args: argparse.Namespace) -> int:
     cells = cells_of(args, scale)
     name = f"{args.experiment}_{scale.name}"
     root = args.output_dir or Path("outputs/experiments") / name
+    with used_alone(root, "--output-dir"):
+        return _run(args, scale, cells, name, Path(root), start, run_id)
+
+
+def _run(
+    args: argparse.Namespace, scale: Scale, cells: list, name: str, root: Path, start: float, run_id: str
+) -> int:
+    """The experiment in the work folder `root`, which this process holds."""
     threads = max(1, (os.cpu_count() or 1) // args.workers) if args.workers > 1 else None
     workspace = Workspace(root, scale, args.galr, threads)
     meta = {
