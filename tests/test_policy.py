@@ -980,3 +980,19 @@ def test_state_guard_reads_the_right_frame_of_a_history(caplog):
         step(create_transition(observation=observation))
     (message,) = [r.getMessage() for r in caplog.records]
     assert "entry 'b' of hand 'h' is 42, 20 range-widths outside its training range [-1, 1]" in message
+
+
+def test_another_checkpoints_postprocessor_beside_a_preprocessor_is_named_as_such(data, tmp_path):
+    """A checkpoint folder given another's postprocessor files: LeRobot pairs its steps with this
+    preprocessor's encode step, whose robots are others."""
+    from lerobot.policies.factory import make_pre_post_processors
+
+    policy, pre, post, frames = make_policy(data, "leap")
+    _, _, other_post, _ = make_policy(data, "merged")
+    for obj in (policy, pre):
+        obj.save_pretrained(tmp_path / "leap")
+    other_post.save_pretrained(tmp_path / "leap")  # the merged checkpoint's postprocessor, over leap's
+    pre, post = make_pre_post_processors(policy.config, pretrained_path=str(tmp_path / "leap"))
+    batch = pre(native_observation("leap", frames[0][OBS_POINTCLOUD][-1]))
+    with pytest.raises(ValueError, match=r"another checkpoint's: it acts for umi, inspire, leap, its prepro"):
+        post(policy.eval().select_action(batch))

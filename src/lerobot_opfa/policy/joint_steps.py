@@ -586,6 +586,12 @@ def paired_frames(step: AbsoluteActionsProcessorStep, batch: int, embodiments: l
     """The robot of the batch a postprocessor step's preprocessor saw last (a one-robot policy's when it
     has seen none)."""
     encoder = step.relative_step if isinstance(step.relative_step, OpfaEncodeJointsStep) else None
+    own = getattr(step, "embodiments", None)
+    if encoder is not None and own and list(own) != list(encoder.embodiments):
+        raise ValueError(
+            f"this postprocessor is another checkpoint's: it acts for {', '.join(own)}, its preprocessor for "
+            f"{', '.join(encoder.embodiments)}; {LOAD_PAIRED}, from one checkpoint folder"
+        )
     seen = None if encoder is None else encoder.last_frames
     if seen is not None and len(seen.ids) == batch:
         return seen
