@@ -820,6 +820,25 @@ def define_probes(fx: dict[str, Path], work: Path) -> list[Probe]:  # noqa: C901
         words=["inspire"],
         absent=(w("m8") / "m",),
     )
+    d = w("merge_map_with_a_mistyped_entry")
+
+    def typo_map(d: Path = d) -> None:
+        names = json.loads((inspire / "meta" / "info.json").read_text())["features"]["observation.state"][
+            "names"
+        ]
+        joints = {name: {"joint": name} for name in names[6:]}
+        joints["thumb_benx"] = joints.pop("thumb_bend")
+        d.mkdir(parents=True, exist_ok=True)
+        (d / "map.yaml").write_text(json.dumps({"hand": "inspire", "joints": joints}))
+
+    add_cli(
+        "merge_map_with_a_mistyped_entry",
+        "merge",
+        [*merge, inspire, "--output", d / "m", "--joint-maps", d / "map.yaml"],
+        words=["thumb_benx", "thumb_bend"],
+        absent=(d / "m",),
+        setup=typo_map,
+    )
 
     # --- merge: a spec named like a built-in but different (item 6) ---------------------------------
     d = w("merge_dataset_of_a_copy_named_umi_then_changed")
@@ -2081,6 +2100,7 @@ def define_probes(fx: dict[str, Path], work: Path) -> list[Probe]:  # noqa: C901
     evaluate("lerobot_eval_env_clouds_of_other_size", words=["64", "256"], n_points="64")
     evaluate("lerobot_eval_unknown_task", words=["press_buton"], task="press_buton")
     evaluate("lerobot_eval_env_without_point_clouds", words=["observation.pointcloud"], obs_type="state")
+    evaluate("lerobot_eval_ee_delta_for_a_joints_policy", words=["env.control", "joints"], control="ee_delta")
 
     # --- experiment / demo ------------------------------------------------------------------------------
     exp = ["experiment", "nine", "--scale", "toy", "--failure-episodes", "0", "--output-dir"]

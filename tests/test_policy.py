@@ -909,9 +909,8 @@ def test_galr_of_a_policy_comes_from_its_flag_its_dataset_or_the_default(data, t
     from lerobot_opfa.policy.record import policy_galr
 
     def galr_path(dataset: str, flag: str | None = None) -> str:
-        config = OpfaConfig(**{**POLICY, "galr_path": flag})
-        policy_galr(config, data / dataset)
-        return config.galr_path
+        path, _ = policy_galr(OpfaConfig(**{**POLICY, "galr_path": flag}), data / dataset)
+        return path
 
     assert galr_path("merged") == str((data / "galr").resolve())  # the one its latents came from
     assert galr_path("merged", str(data / "galr")) == str(data / "galr")
@@ -996,3 +995,22 @@ def test_another_checkpoints_postprocessor_beside_a_preprocessor_is_named_as_suc
     batch = pre(native_observation("leap", frames[0][OBS_POINTCLOUD][-1]))
     with pytest.raises(ValueError, match=r"another checkpoint's: it acts for umi, inspire, leap, its prepro"):
         post(policy.eval().select_action(batch))
+
+
+def test_building_a_policy_and_its_processors_leaves_their_config_as_passed(data):
+    """The record is resolved from the dataset into the policy's own copy of the config; the config a user
+    (or lerobot-train) passed is not written into."""
+    import copy
+    import dataclasses
+
+    meta = LeRobotDatasetMetadata("local/merged", root=data / "merged")
+    config = OpfaConfig(**{**POLICY, "galr_path": str(data / "galr")})
+    features = dataset_to_policy_features(meta.features)
+    config.output_features = {k: f for k, f in features.items() if f.type is FeatureType.ACTION}
+    config.input_features = {k: f for k, f in features.items() if k not in config.output_features}
+    passed = {field.name: copy.deepcopy(getattr(config, field.name)) for field in dataclasses.fields(config)}
+    policy = OpfaPolicy(config, dataset_meta=meta)
+    make_opfa_pre_post_processors(config, dataset_meta=meta)
+    for name, value in passed.items():
+        assert getattr(config, name) == value, name
+    assert policy.config.embodiments == ["umi", "inspire", "leap"] and not config.embodiments

@@ -7,6 +7,7 @@ same network serves a 1-DoF gripper and a 16-DoF hand.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from collections import deque
 from pathlib import Path
@@ -69,13 +70,16 @@ class OpfaPolicy(PreTrainedPolicy):
     name = "opfa"
 
     def __init__(self, config: OpfaConfig, dataset_meta=None, **kwargs):
-        super().__init__(config)
-        config.validate_features()
+        """`config` is left as it is: the policy keeps a copy resolved from `dataset_meta` (training), or
+        `config` itself (a trained checkpoint's)."""
         meta = dataset_meta if dataset_meta is not None else getattr(config, "_runtime_dataset_meta", None)
         if meta is not None:
-            resolve_config(config, meta)
-        if config.embodiments and not config.embodiment_joints:  # saved before the field existed: built-ins
-            config.embodiment_joints = [load_spec(hand).universal_names for hand in config.embodiments]
+            config, _, _ = resolve_config(config, meta)
+        elif config.embodiments and not config.embodiment_joints:  # saved before the field existed
+            joints = [load_spec(hand).universal_names for hand in config.embodiments]
+            config = dataclasses.replace(config, embodiment_joints=joints)
+        super().__init__(config)
+        config.validate_features()
         if not config.embodiment_joints or (config.space.uses_galr and config.latent_dim is None):
             raise ValueError("an opfa policy is built from a dataset (dataset_meta) or a trained checkpoint")
         if not config.state_encoder_width:

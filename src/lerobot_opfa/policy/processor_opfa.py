@@ -313,9 +313,9 @@ def make_opfa_pre_post_processors(
     meta = dataset_meta if dataset_meta is not None else getattr(config, "_runtime_dataset_meta", None)
     if meta is None:
         raise ValueError("opfa processors are built from the training dataset: pass dataset_meta")
+    config, layout, galr = resolve_config(config, meta)
     if config.cameras:
         config.validate_features()  # the depth features become the cloud the depth step makes
-    layout, galr = resolve_config(config, meta)
     check_trainable_frames(config, layout, Path(meta.root))
     depth, clouds = [], []
     if config.uses_pointcloud:

@@ -5,6 +5,7 @@ policy and its processors are built from it, each from the same dataset."""
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import logging
 from pathlib import Path
 from typing import Any
@@ -20,26 +21,28 @@ from lerobot_opfa.policy.configuration_opfa import OpfaConfig
 logger = logging.getLogger(__name__)
 
 
-def policy_galr(config: OpfaConfig, dataset_root: Path | str | None = None) -> Galr | None:
-    """The frozen GaLR of a `galr` policy. Without `--policy.galr_path` it is the one the dataset's cached
-    latents came from, else the packaged default; the choice is written into the config (and so saved with
-    the policy). A given checkpoint that did not make the dataset's latents is an error."""
+def policy_galr(config: OpfaConfig, dataset_root: Path | str | None = None) -> tuple[str | None, Galr | None]:
+    """The frozen GaLR of a `galr` policy and the checkpoint it is (None, None for another space). Without
+    `--policy.galr_path` it is the one the dataset's cached latents came from, else the packaged default
+    (`resolve_config` saves the choice with the policy). A given checkpoint that did not make the dataset's
+    latents is an error."""
     if not config.space.uses_galr:
-        return None
+        return None, None
     record = opfa_record(dataset_root)
-    if not config.galr_path:
+    path = config.galr_path
+    if not path:
         recorded = bool(record.get("galr_fingerprint"))
-        config.galr_path = _recorded_galr(record) if recorded else checkpoints.DEFAULT
+        path = _recorded_galr(record) if recorded else checkpoints.DEFAULT
         source = "the one the dataset's latents came from" if recorded else "the default"
-        logger.info(f"GaLR checkpoint: {config.galr_path} ({source}; --policy.galr_path chooses another)")
-    galr = load_galr(str(config.galr_path))
+        logger.info(f"GaLR checkpoint: {path} ({source}; --policy.galr_path chooses another)")
+    galr = load_galr(str(path))
     if record.get("galr_fingerprint") not in (None, galr_fingerprint(galr)):
         raise ValueError(
-            f"--policy.galr_path={config.galr_path} is not the GaLR the dataset's latents were cached with "
+            f"--policy.galr_path={path} is not the GaLR the dataset's latents were cached with "
             f"({record.get('galr')}); leave the flag out to use that one, or merge the demos again with "
-            f"--galr {config.galr_path}"
+            f"--galr {path}"
         )
-    return galr
+    return str(path), galr
 
 
 def _recorded_galr(record: dict) -> str:
@@ -57,10 +60,11 @@ def _recorded_galr(record: dict) -> str:
     )
 
 
-def resolve_config(config: OpfaConfig, dataset_meta: Any) -> tuple[DatasetLayout, Galr | None]:
-    """Fill the config's dataset-derived fields (embodiments, wrist names, latent size) from a dataset;
-    returns its layout and the policy's frozen GaLR (`policy_galr`)."""
-    galr = policy_galr(config, dataset_meta.root)
+def resolve_config(config: OpfaConfig, dataset_meta: Any) -> tuple[OpfaConfig, DatasetLayout, Galr | None]:
+    """The policy's record resolved from a dataset: a copy of `config` with the fields it derives from the
+    dataset (embodiments, wrist names, robots, their hands' universal joints, the GaLR and its latent size),
+    the dataset's layout and the policy's frozen GaLR (`policy_galr`). `config` itself is left as it is."""
+    galr_path, galr = policy_galr(config, dataset_meta.root)
     layout = read_layout(
         dataset_meta.features,
         dataset_meta.robot_type,
@@ -82,14 +86,21 @@ def resolve_config(config: OpfaConfig, dataset_meta: Any) -> tuple[DatasetLayout
         unknown = [h for h in layout.embodiments if h not in galr.config.hand_names]
         if unknown:
             raise ValueError(
-                f"hand(s) {unknown} are not in the GaLR registry of {config.galr_path} "
+                f"hand(s) {unknown} are not in the GaLR registry of {galr_path} "
                 f"({', '.join(galr.config.hand_names)}); add them with `lerobot-opfa galr pretrain --init "
-                f"{config.galr_path} --hands +SPEC` (minutes), or use action_space raw or per_embodiment"
+                f"{galr_path} --hands +SPEC` (minutes), or use action_space raw or per_embodiment"
             )
-        config.latent_dim = galr.config.latent_dim
     config.space.check_robots(layout.robots, layout.embodiments)
-    config.embodiments, config.wrist_names = list(layout.embodiments), list(layout.wrist_names)
-    config.robots = [list(robot) for robot in layout.robots]
-    config.action_body_names = None if layout.action_body_names is None else list(layout.action_body_names)
-    config.embodiment_joints = [load_spec(ref).universal_names for ref in layout.hand_refs]
-    return layout, galr
+    resolved = dataclasses.replace(
+        config,
+        input_features=dict(config.input_features or {}),
+        output_features=dict(config.output_features or {}),
+        galr_path=galr_path if galr is not None else config.galr_path,
+        latent_dim=galr.config.latent_dim if galr is not None else config.latent_dim,
+        embodiments=list(layout.embodiments),
+        wrist_names=list(layout.wrist_names),
+        robots=[list(robot) for robot in layout.robots],
+        action_body_names=None if layout.action_body_names is None else list(layout.action_body_names),
+        embodiment_joints=[load_spec(ref).universal_names for ref in layout.hand_refs],
+    )
+    return resolved, layout, galr

@@ -77,7 +77,7 @@ def latent_dataset(
             f"{', '.join(k for k in meta.features if k not in kept)})"
         )
     config = OpfaConfig(device="cpu", galr_path=galr_path, joint_map=joint_map and str(joint_map))
-    layout, galr = resolve_config(config, meta)
+    config, layout, galr = resolve_config(config, meta)
     steps = policy_space_steps(config, meta, layout, galr)
     state, action = _policy_space_frames(steps, source, layout.kind == "merged")
     hand = hand_entry_names(config, layout, steps.encode)
