@@ -235,7 +235,7 @@ def test_per_embodiment_trains_and_acts_on_a_user_hand_without_a_galr(user_shado
     config.input_features = {k: f for k, f in features.items() if k not in config.output_features}
     policy = OpfaPolicy(config, dataset_meta=meta)
     pre, post = make_opfa_pre_post_processors(config, dataset_meta=meta)
-    assert config.galr_path is None and config.embodiment_joints == [
+    assert policy.config.galr_path is None and policy.config.embodiment_joints == [
         load_hand(user_shadow_spec).universal_names
     ]
     dataset = LeRobotDataset(
