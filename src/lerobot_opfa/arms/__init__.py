@@ -1,0 +1,1 @@
+"""Arms: the kinematics that carry a hand's wrist to a pose and back."""
