@@ -38,9 +38,10 @@ from lerobot.datasets.lerobot_dataset import LeRobotDataset  # noqa: E402
 from lerobot.policies.factory import make_policy, make_pre_post_processors  # noqa: E402
 from lerobot.utils.feature_utils import dataset_to_policy_features  # noqa: E402
 
+import lerobot_policy_opfa  # noqa: E402, F401  (the plugin, as LeRobot loads it: steps, robot_type)
 from lerobot_opfa.datasets.merge import merge_datasets  # noqa: E402
 from lerobot_opfa.datasets.synthetic import write_synthetic_dataset  # noqa: E402
-from lerobot_opfa.features import OBS_POINTCLOUD  # noqa: E402
+from lerobot_opfa.features import OBS_POINTCLOUD, ROBOT_TYPE  # noqa: E402
 from lerobot_opfa.galr.model import Galr, GalrConfig, hand_record  # noqa: E402
 from lerobot_opfa.hands import load_hand  # noqa: E402
 from lerobot_opfa.policy.configuration_opfa import OpfaConfig  # noqa: E402
@@ -105,6 +106,8 @@ def observation(dataset, hand: str, latent: bool) -> dict:
     if latent:
         state = item["observation.state"][-1]
     obs = {"observation.state": state, OBS_POINTCLOUD: item[OBS_POINTCLOUD][-1], "task": "lift"}
+    if not latent:
+        obs[ROBOT_TYPE] = hand  # which of the policy's robots the frames come from, as LeRobot says it
     if "observation.environment_state" in item:
         obs["observation.environment_state"] = item["observation.environment_state"][-1]
     return obs
