@@ -2,7 +2,9 @@
 last `n_obs_steps` frames condition a U-Net that denoises a chunk of (wrist + z) actions with DDIM.
 
 The policy never sees joints: the preprocessor maps them to its space and the postprocessor back, so the
-same network serves a 1-DoF gripper and a 16-DoF hand.
+same network serves a 1-DoF gripper and a 16-DoF hand. Importing this module registers those processors'
+steps, which LeRobot's registry finds by name: a policy loaded in Python loads its processors as it would
+through the plugin.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ from torch import Tensor, nn
 from lerobot_opfa.features import OBS_EMBODIMENT, OBS_POINTCLOUD, column_embodiments
 from lerobot_opfa.galr.pointnet import PointNetEncoder
 from lerobot_opfa.hands.registry import load_spec
+from lerobot_opfa.policy import depth_step, joint_steps, normalization  # noqa: F401  (registers the steps)
 from lerobot_opfa.policy.configuration_opfa import OpfaConfig
 from lerobot_opfa.policy.diffusion import ConditionalUnet1d, Ddim
 from lerobot_opfa.policy.fast_sampling import FastSampler
