@@ -388,6 +388,7 @@ class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
         super().__post_init__()
         self.last_frames: FrameRobot | None = None
         self._decoded_caches: dict[int, LatentCache] = {}
+        self._named_hands: dict[str, frozenset[str]] = {}
 
     def __call__(self, transition):
         new = transition.copy()
@@ -468,11 +469,19 @@ class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
     def _is_of_type(self, robot: tuple[int, ...], robot_type: str) -> bool:
         """Whether `robot_type` is `robot`'s: its name, the robot_type its joint map confirms, or a name
         that says exactly its hands (`arm_inspire`)."""
-        named = set(hands_named_in(robot_type, {*builtin_hands(), *self.embodiments}))
+        named = self.hands_named(robot_type)
         confirmed = self.maps[robot].robot_type if robot in self.maps else None
         return robot_type in (self.robot_name(robot), confirmed) or named == {
             self.embodiments[e] for e in robot
         }
+
+    def hands_named(self, robot_type: str) -> frozenset[str]:
+        """The built-in or policy hands a `robot_type` names (`joint_map.hands_named_in`), read once per
+        robot type: a deployed robot gives its type with every frame."""
+        if robot_type not in self._named_hands:
+            hands = {*builtin_hands(), *self.embodiments}
+            self._named_hands[robot_type] = frozenset(hands_named_in(robot_type, hands))
+        return self._named_hands[robot_type]
 
     def _check_robot_type(self, robot: tuple[int, ...] | None, robot_type: str | None) -> None:
         """A deployed robot whose `robot_type` names other hands than `robot`'s (None: than any trained
@@ -483,7 +492,7 @@ class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
             return
         if robot is not None and self._is_of_type(robot, robot_type):
             return
-        named = hands_named_in(robot_type, {*builtin_hands(), *self.embodiments})
+        named = self.hands_named(robot_type)
         if named:
             mine = (
                 self.robot_name(robot) if robot is not None else ", ".join(map(self.robot_name, self.robots))
