@@ -3,9 +3,7 @@ LeRobot adapter on top of the simulator (`env`, `tasks`)."""
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import gymnasium as gym
 from lerobot.configs import FeatureType, PolicyFeature, parser
@@ -13,6 +11,8 @@ from lerobot.envs.configs import EnvConfig
 from lerobot.processor import EnvTransition, PolicyProcessorPipeline, ProcessorStep, TransitionKey
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGES, OBS_STATE
 
+from lerobot_opfa import checkpoint_files
+from lerobot_opfa.checkpoint_files import POSTPROCESSOR, PREPROCESSOR
 from lerobot_opfa.datasets.joint_map import HANDS_SEPARATOR
 from lerobot_opfa.envs.bimanual import (
     ALL_TASKS,
@@ -31,7 +31,6 @@ from lerobot_opfa.flags import flag
 from lerobot_opfa.hands.bundle import carried_hand
 from lerobot_opfa.hands.registry import load_spec
 
-PREPROCESSOR, POSTPROCESSOR = "policy_preprocessor.json", "policy_postprocessor.json"
 ENCODE_STEP, DECODE_STEP = "opfa_encode_joints", "opfa_decode_joints"
 """The registry names of the steps that read a robot's entries and give its action entries back."""
 
@@ -51,29 +50,26 @@ for _task in ALL_TASKS.values():
         )
 
 
-def _checkpoint_file(policy_path: str | None, name: str) -> dict | None:
-    """A JSON file of the local checkpoint folder at `policy_path` (what `--policy.path` names, read as
-    LeRobot's own configs read it, `parser.get_path_arg`: the env config is parsed before the policy is
-    loaded), or None."""
-    path = Path(policy_path) / name if policy_path else None
-    return json.loads(path.read_text()) if path is not None and path.is_file() else None
-
-
 def converted_action_width(policy_path: str | None) -> int | None:
-    """The action width of the checkpoint at `policy_path` if it is a stock policy given joint-space
-    processors by `policy convert-io` (its actions are body + z, not the env's joints), else None."""
-    config, post = _checkpoint_file(policy_path, "config.json"), _checkpoint_file(policy_path, POSTPROCESSOR)
-    if config is None or post is None or config.get("type") == "opfa":
+    """The action width of the local checkpoint at `policy_path` (what `--policy.path` names, read as
+    LeRobot's own configs read it, `parser.get_path_arg`: the env config is parsed before the policy is
+    loaded) if it is a stock policy given joint-space processors by `policy convert-io` (its actions are
+    body + z, not the env's joints), else None."""
+    config = checkpoint_files.read(policy_path, "config.json")
+    if config is None or config.get("type") == "opfa":
         return None
-    if not any(step.get("registry_name") == DECODE_STEP for step in post["steps"]):
+    if not any(
+        s.get("registry_name") == DECODE_STEP for s in checkpoint_files.steps(policy_path, POSTPROCESSOR)
+    ):
         return None
     return int(config["output_features"][ACTION]["shape"][0])
 
 
 def trained_state_names(policy_path: str | None) -> list[list[str]]:
     """The state entries of each robot the checkpoint at `policy_path` was trained on (none known: [])."""
-    pre = _checkpoint_file(policy_path, PREPROCESSOR) or {"steps": []}
-    steps = [step for step in pre["steps"] if step.get("registry_name") == ENCODE_STEP]
+    steps = [
+        s for s in checkpoint_files.steps(policy_path, PREPROCESSOR) if s.get("registry_name") == ENCODE_STEP
+    ]
     return [list(m["state_names"]) for step in steps for m in step.get("config", {}).get("joint_maps", [])]
 
 
@@ -133,7 +129,8 @@ class OpfaEnvConfig(EnvConfig):
             check_any_task(self.task)
         policy_path = parser.get_path_arg("policy")
         hands = self.hand.split(HANDS_SEPARATOR)
-        self.hand = HANDS_SEPARATOR.join(carried_hand(hand, policy_path) for hand in hands)
+        states = [path for path in checkpoint_files.state_files(policy_path) if path.is_file()]
+        self.hand = HANDS_SEPARATOR.join(carried_hand(hand, states) for hand in hands)
         with flag("env.regions"):
             parse_regions(self.regions)
         with flag("env.obs_type"):

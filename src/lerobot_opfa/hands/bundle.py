@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import hashlib
 import io
-import json
 import os
 import re
 import tarfile
@@ -78,26 +77,20 @@ def unpack(data: bytes) -> Path:
     return folder / SPEC
 
 
-def carried_hand(name: str, checkpoint: str | None) -> str:
-    """`name` itself, or where it is neither a built-in hand nor a spec path, the user hand of that name the
-    local checkpoint folder `checkpoint` carries in its processors' state, unpacked: a checkpoint moved to
-    another machine brings its hand, whose spec is not there."""
+def carried_hand(name: str, state_files: list[Path]) -> str:
+    """`name` itself, or where it is neither a built-in hand nor a spec path, the user hand of that name that
+    a checkpoint's processor `state_files` carry, unpacked: a checkpoint moved to another machine brings its
+    hand, whose spec is not there."""
     from lerobot_opfa.hands.registry import builtin_hands
 
-    folder = Path(checkpoint) if checkpoint else None
-    if name in builtin_hands() or Path(name).exists() or folder is None:
+    if name in builtin_hands() or Path(name).exists():
         return name
     from safetensors import safe_open
 
-    for processor in ("policy_preprocessor.json", "policy_postprocessor.json"):
-        if not (folder / processor).is_file():
-            continue
-        for step in json.loads((folder / processor).read_text()).get("steps", []):
-            state = folder / step.get("state_file", "")
-            if step.get("state_file") and state.is_file():
-                with safe_open(state, "pt") as tensors:
-                    if f"{USER_HAND}{name}" in tensors.keys():
-                        return str(unpack(tensors.get_tensor(f"{USER_HAND}{name}").numpy().tobytes()))
+    for state in state_files:
+        with safe_open(state, "pt") as tensors:
+            if f"{USER_HAND}{name}" in tensors.keys():
+                return str(unpack(tensors.get_tensor(f"{USER_HAND}{name}").numpy().tobytes()))
     return name
 
 

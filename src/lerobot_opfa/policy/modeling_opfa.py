@@ -10,7 +10,6 @@ through the plugin.
 from __future__ import annotations
 
 import dataclasses
-import json
 from collections import deque
 from pathlib import Path
 
@@ -21,6 +20,7 @@ from lerobot.policies.utils import populate_queues
 from lerobot.utils.constants import ACTION, OBS_STATE
 from torch import Tensor, nn
 
+from lerobot_opfa import checkpoint_files
 from lerobot_opfa.features import OBS_EMBODIMENT, OBS_POINTCLOUD, column_embodiments
 from lerobot_opfa.galr.pointnet import PointNetEncoder
 from lerobot_opfa.hands.registry import load_spec
@@ -55,12 +55,8 @@ def check_complete(folder: Path) -> None:
     """A checkpoint folder holds its weights and every state file its processors' configs name: a folder
     copied in part would otherwise fail in safetensors' or LeRobot's loaders with a traceback that names no
     fix. (A Hub checkpoint's processor files are fetched later, each with its state files.)"""
-    wanted = ["model.safetensors"]
-    for name in ("policy_preprocessor.json", "policy_postprocessor.json"):
-        if (folder / name).is_file():
-            steps = json.loads((folder / name).read_text()).get("steps", [])
-            wanted += [step["state_file"] for step in steps if step.get("state_file")]
-    missing = [name for name in wanted if not (folder / name).is_file()]
+    wanted = [folder / "model.safetensors", *checkpoint_files.state_files(folder)]
+    missing = [path.name for path in wanted if not path.is_file()]
     if missing:
         raise ValueError(
             f"{folder} is an incomplete checkpoint: {', '.join(missing)} missing (a folder copied in part?); "
