@@ -33,7 +33,7 @@ import matplotlib  # noqa: E402
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from lerobot_opfa.envs.bimanual import LiftTray  # noqa: E402
+from lerobot_opfa.envs.tasks import LiftTray  # noqa: E402
 from lerobot_opfa.experiments.jobs import (  # noqa: E402
     CONDITIONS,
     Demos,

@@ -41,7 +41,7 @@ from lerobot.utils.constants import OBS_STATE  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
 import lerobot_policy_opfa  # noqa: E402, F401  (the plugin, as LeRobot loads it: steps, robot_type)
-from lerobot_opfa.envs.bimanual import OpfaBimanualEnv  # noqa: E402
+from lerobot_opfa.envs.env import OpfaSimEnv  # noqa: E402
 from lerobot_opfa.experiments.jobs import EVAL_SEED  # noqa: E402
 from lerobot_opfa.features import OBS_POINTCLOUD, ROBOT_TYPE  # noqa: E402
 from lerobot_opfa.policy.modeling_opfa import OpfaPolicy  # noqa: E402
@@ -76,9 +76,10 @@ class Pilot:
         return np.stack([self.act(state, hands, cloud) for _ in range(self.policy.config.n_action_steps)])
 
 
-def scene(hands: str) -> OpfaBimanualEnv:
-    return OpfaBimanualEnv(
-        hands=hands,
+def scene(hands: str) -> OpfaSimEnv:
+    return OpfaSimEnv(
+        "lift_tray",
+        hands,
         obs_type="pointcloud_state",
         pointcloud_source="geometry",
         n_points=256,
@@ -86,7 +87,7 @@ def scene(hands: str) -> OpfaBimanualEnv:
     )
 
 
-def pose_like(shadow: OpfaBimanualEnv, real: OpfaBimanualEnv) -> dict[str, np.ndarray]:
+def pose_like(shadow: OpfaSimEnv, real: OpfaSimEnv) -> dict[str, np.ndarray]:
     """The shadow's observation with every joint that has a namesake in the real scene set as it is there."""
     for j in range(shadow.model.njnt):
         name = mujoco.mj_id2name(shadow.model, mujoco.mjtObj.mjOBJ_JOINT, j)
@@ -100,7 +101,7 @@ def pose_like(shadow: OpfaBimanualEnv, real: OpfaBimanualEnv) -> dict[str, np.nd
     return shadow.observation()
 
 
-def wrists(env: OpfaBimanualEnv) -> list[int]:
+def wrists(env: OpfaSimEnv) -> list[int]:
     return [env.state_names.index(f"{side}_wrist_{axis}") for side in ("left", "right") for axis in "xyz"]
 
 

@@ -142,9 +142,9 @@ def record(stages: Stages, task: str, hand: str, demos: int, episode_s: float = 
 
 
 def deploy_seconds(task: str) -> int:
-    from lerobot_opfa.envs.bimanual import ALL_TASKS
+    from lerobot_opfa.envs.tasks import TASKS
 
-    return math.ceil(ALL_TASKS[task].episode_steps / LOOP_HZ)
+    return math.ceil(TASKS[task].episode_steps / LOOP_HZ)
 
 
 def evaluate(stages: Stages, task: str, hand: str, model: Path, episodes: int, n_points: int) -> dict:

@@ -30,7 +30,7 @@ from tqdm import tqdm  # noqa: E402
 
 from lerobot_opfa.envs.env import OpfaSimEnv  # noqa: E402
 from lerobot_opfa.envs.experts import EXCLUDED_PAIRS, ScriptedExpert  # noqa: E402
-from lerobot_opfa.envs.tasks import TASKS  # noqa: E402
+from lerobot_opfa.envs.tasks import ONE_HAND_TASKS, TASKS  # noqa: E402
 from lerobot_opfa.hands import builtin_hands  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"
@@ -107,7 +107,7 @@ def main() -> None:
     )
     args = parser.parse_args()
     hands = list(builtin_hands()) if args.hands == "all" else args.hands.split(",")
-    tasks = list(TASKS) if args.tasks == "all" else args.tasks.split(",")
+    tasks = ONE_HAND_TASKS if args.tasks == "all" else args.tasks.split(",")
     path = RESULTS / "sim.json"
     old = json.loads(path.read_text()) if args.resume and path.is_file() else {}
     result = {

@@ -6,15 +6,18 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lerobot_opfa.envs.bimanual import SIDES, BimanualExpert, OpfaBimanualEnv, parse_hands
+from lerobot_opfa.datasets.joint_map import SIDES
+from lerobot_opfa.envs.env import OpfaSimEnv
+from lerobot_opfa.envs.experts import ScriptedExpert
 from lerobot_opfa.envs.scene import WRIST_JOINTS
+from lerobot_opfa.envs.tasks import parse_hands
 from lerobot_opfa.hands import load_hand
 
 
-def run_expert(env: OpfaBimanualEnv, seed: int, one_arm: bool = False) -> bool:
+def run_expert(env: OpfaSimEnv, seed: int, one_arm: bool = False) -> bool:
     """One seeded episode of the expert (with `one_arm`, the right arm stays home, its hand open)."""
     env.reset(seed=seed)
-    expert = BimanualExpert(env, np.random.default_rng(seed))
+    expert = ScriptedExpert(env, np.random.default_rng(seed))
     right = env.arm("right")
     home = np.concatenate([right.home, right.hand_open])
     for _ in range(env.task.episode_steps):
@@ -28,7 +31,7 @@ def run_expert(env: OpfaBimanualEnv, seed: int, one_arm: bool = False) -> bool:
 
 @pytest.fixture(scope="module")
 def env():
-    env = OpfaBimanualEnv(hands="inspire+xhand", obs_type="state")
+    env = OpfaSimEnv("lift_tray", "inspire+xhand", obs_type="state")
     yield env
     env.close()
 
@@ -52,6 +55,27 @@ def test_the_two_armed_expert_lifts_the_tray_level_and_one_arm_alone_never_does(
     assert sum(run_expert(env, seed) for seed in range(8)) >= 7
     assert not any(run_expert(env, seed, one_arm=True) for seed in range(4)), "one hand folds the tray"
     assert set(env.task.handles(env.placement)) == set(SIDES)
+
+
+def test_two_arms_get_the_one_arm_scenes_colour_camera_and_ee_delta_control_arm_by_arm():
+    """The two-armed scene is the same env class: colour pictures, and `ee_delta` control of a gripper on
+    each arm (each arm's step and grasp, its state named by side), the expert's targets reached through it."""
+    env = OpfaSimEnv("lift_tray", "umi+robotiq_2f85", obs_type="rgb", control="ee_delta", camera_width=64,
+                     camera_height=48)  # fmt: skip
+    obs, _ = env.reset(seed=0)
+    assert obs["pixels"]["front_rgb"].shape == (48, 64, 3) and obs["pixels"]["front_rgb"].std() > 0
+    assert env.action_names == [f"{side}_{n}" for side in SIDES for n in ("dx", "dy", "dz", "dyaw", "grasp")]
+    assert env.state_names[0] == "left_wrist_x" and env.state_names[-1] == "right_gripper"
+    assert env.joint_map is None, "ee_delta entries are read through the map a policy was trained with"
+    assert obs["agent_pos"].shape == (26,) and env.action_space.shape == (10,)
+    expert = ScriptedExpert(env, np.random.default_rng(0))
+    for _ in range(30):
+        obs = env.step(env.command(expert.act()))[0]
+    targets = expert.act()
+    left, right = obs["agent_pos"][:3], obs["agent_pos"][13:16]
+    assert np.abs(left - targets[:3]).max() < 0.03 and np.abs(right - targets[7:10]).max() < 0.03
+    assert left[1] > 0 > right[1], "each arm's steps move its own wrist"
+    env.close()
 
 
 def test_two_hand_demos_train_one_policy_that_lerobot_eval_runs_in_the_two_armed_env(tmp_path, monkeypatch):
@@ -114,8 +138,8 @@ def test_a_policy_of_two_pairs_of_hands_drives_the_mixed_pair_in_the_simulator_a
         LeRobotDatasetMetadata("local/merged", root=tmp_path / "merged").features[OBS_STATE]["shape"][0] > 12
     )
     policy, pre, post, _ = make_policy(tmp_path, "merged")
-    env = OpfaBimanualEnv(
-        hands="inspire+xhand", obs_type="pointcloud", pointcloud_source="geometry", n_points=32
+    env = OpfaSimEnv(
+        "lift_tray", "inspire+xhand", obs_type="pointcloud", pointcloud_source="geometry", n_points=32
     )
     obs, _ = env.reset(seed=0)
     observation = {OBS_STATE: torch.tensor(obs["agent_pos"]).float(), ROBOT_TYPE: env.hand_name,

@@ -16,11 +16,11 @@ from lerobot_opfa.envs.env import OpfaSimEnv
 from lerobot_opfa.envs.experts import SQUEEZE, ScriptedExpert
 from lerobot_opfa.envs.observation import DEPTH_QUALITY
 from lerobot_opfa.envs.regions import REGIONS, parse_regions
-from lerobot_opfa.envs.tasks import TASKS
+from lerobot_opfa.envs.tasks import ONE_HAND_TASKS, TASKS
 from lerobot_opfa.flags import FlagError
 from lerobot_opfa.pointclouds import WORKSPACE_HIGH, WORKSPACE_LOW
 
-TASK_NAMES = list(TASKS)
+TASK_NAMES = ONE_HAND_TASKS
 
 
 def test_the_table_has_at_least_nine_regions():
@@ -33,7 +33,7 @@ def test_every_hand_steps_in_every_task(hand):
     for task in TASK_NAMES:
         env = OpfaSimEnv(task, hand, obs_type="pointcloud_state", pointcloud_source="geometry", n_points=64)
         obs, info = env.reset(seed=1)
-        assert env.action_space.shape == obs["agent_pos"].shape == (6 + env.hand_model.dof,)
+        assert env.action_space.shape == obs["agent_pos"].shape == (6 + env.hand_models[None].dof,)
         for _ in range(4):
             obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
             assert all(np.all(np.isfinite(v)) for v in obs.values()), (hand, task)
@@ -73,7 +73,8 @@ def test_pick_place_needs_release():
     env = OpfaSimEnv("pick_place", "umi", obs_type="state")
     env.reset(seed=3)
     expert = ScriptedExpert(env, np.random.default_rng(3))
-    expert.plan[-3].closure = expert.plan[-2].closure = expert.plan[-1].closure = SQUEEZE  # never open
+    (arm,) = expert.arms
+    arm.plan[-3].closure = arm.plan[-2].closure = arm.plan[-1].closure = SQUEEZE  # never open
     while not expert.done:
         _, _, terminated, _, _ = env.step(expert.act())
         assert not terminated
@@ -206,7 +207,8 @@ def test_contact_does_not_push_a_joint_past_its_stop(monkeypatch):
 
     env = OpfaSimEnv("pull_drawer", "shadow", obs_type="pointcloud_state", n_points=32)
     frames, ok = expert_episode(env, seed=0, region="mid_center")
-    hand, lower, upper = env.hand_model, env.hand_model.lower.numpy(), env.hand_model.upper.numpy()
+    hand = env.hand_models[None]
+    lower, upper = hand.lower.numpy(), hand.upper.numpy()
     readings = np.stack([frame["observation.state"][-hand.dof :] for frame in frames])
     assert ok and (np.maximum(lower - readings, readings - upper) / (upper - lower)).max() < 0.01
     env.close()

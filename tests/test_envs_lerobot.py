@@ -100,14 +100,13 @@ def test_sim_show_png_and_video(tmp_path, capsys):
 
 
 def test_sim_show_says_why_the_expert_failed(tmp_path, capsys, monkeypatch):
-    from lerobot_opfa.envs.experts import ScriptedExpert
-    from lerobot_opfa.envs.scene import HOME
+    from lerobot_opfa.envs.experts import ArmExpert
 
     def stay_home(expert):
         expert.t += 1
-        return np.concatenate([HOME, expert.env.hand_open])
+        return np.concatenate([expert.env.home, expert.open])
 
-    monkeypatch.setattr(ScriptedExpert, "act", stay_home)
+    monkeypatch.setattr(ArmExpert, "act", stay_home)
     png, mp4 = tmp_path / "scene.png", tmp_path / "expert.mp4"
     argv = ["sim", "show", "--task", "press_button", "--hand", "umi", "--out", str(png), "--video", str(mp4)]
     assert main(argv) == 0

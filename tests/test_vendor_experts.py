@@ -14,10 +14,9 @@ import pytest
 from conftest import DATA, example_robot_data_allegro
 
 from lerobot_opfa import cli
-from lerobot_opfa.envs import bimanual as experts_by_task
+from lerobot_opfa.envs import experts
 from lerobot_opfa.envs.env import OpfaSimEnv
 from lerobot_opfa.envs.experts import ScriptedExpert
-from lerobot_opfa.envs.scene import HOME
 
 SEEDS = (0, 1, 2)
 
@@ -106,16 +105,16 @@ def test_a_urdf_with_a_massless_moving_link_is_simulated(tmp_path):
     assert expert_successes("press_button", str(spec)) == list(SEEDS)
 
 
-class _IdleExpert(ScriptedExpert):
-    """An expert that keeps the open hand at home: every episode fails at its first phase."""
+class _IdleExpert(experts.ArmExpert):
+    """An arm's expert that keeps the open hand at home: every episode fails at its first phase."""
 
     def act(self) -> np.ndarray:
         self.t += 1
-        return np.concatenate([HOME, self.open])
+        return np.concatenate([self.env.home, self.open])
 
 
 def test_sim_demos_says_which_phase_failed(tmp_path, capsys, caplog, monkeypatch):
-    monkeypatch.setattr(experts_by_task, "ScriptedExpert", _IdleExpert)  # what `sim demos` builds
+    monkeypatch.setattr(experts, "ArmExpert", _IdleExpert)  # what `sim demos` builds, arm by arm
     argv = ["sim", "demos", "--task", "press_button", "--hand", "umi", "--episodes", "1", "--n-points", "32",
             "--pointcloud-source", "geometry", "--output-dir", str(tmp_path / "demos")]  # fmt: skip
     assert cli.main(argv) == 2

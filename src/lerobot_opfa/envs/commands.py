@@ -88,7 +88,7 @@ def _show(args: argparse.Namespace) -> int:
     fig = Figure(figsize=(11, 4.5))
     ax = fig.add_subplot(1, 2, 1)
     ax.imshow(env.render())
-    ax.set_title(f"{args.task} / {env.hand_model.name} / {info['region']}")
+    ax.set_title(f"{args.task} / {env.hand_name} / {info['region']}")
     ax.axis("off")
     cloud = obs["pointcloud"].reshape(-1, 3)
     ax = fig.add_subplot(1, 2, 2, projection="3d")

@@ -14,18 +14,11 @@ from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGES, OBS_STATE
 from lerobot_opfa import checkpoint_files
 from lerobot_opfa.checkpoint_files import POSTPROCESSOR, PREPROCESSOR
 from lerobot_opfa.datasets.joint_map import HANDS_SEPARATOR
-from lerobot_opfa.envs.bimanual import (
-    ALL_TASKS,
-    BIMANUAL_TASKS,
-    TWO_HAND_OBS_TYPES,
-    check_any_task,
-    task_hands,
-)
 from lerobot_opfa.envs.control import EE_ACTION_NAMES, EE_STATE_NAMES, check_control
 from lerobot_opfa.envs.env import OBS_TYPES, POINTCLOUD_SOURCES, check_choice, parse_cameras
 from lerobot_opfa.envs.regions import parse_regions
 from lerobot_opfa.envs.scene import WRIST_JOINTS
-from lerobot_opfa.envs.tasks import ENV_STATE_DIM
+from lerobot_opfa.envs.tasks import ENV_STATE_DIM, TASKS, check_task, task_hands
 from lerobot_opfa.features import OBS_POINTCLOUD, ROBOT_TYPE
 from lerobot_opfa.flags import flag
 from lerobot_opfa.hands.bundle import carried_hand
@@ -39,12 +32,11 @@ def gym_id(task: str) -> str:
     return f"opfa/{task}-v0"
 
 
-for _task in ALL_TASKS.values():
+for _task in TASKS.values():
     if gym_id(_task.name) not in gym.registry:
-        module = "bimanual:OpfaBimanualEnv" if _task.name in BIMANUAL_TASKS else "env:OpfaSimEnv"
         gym.register(
             id=gym_id(_task.name),
-            entry_point=f"lerobot_opfa.envs.{module}",
+            entry_point="lerobot_opfa.envs.env:OpfaSimEnv",
             max_episode_steps=_task.episode_steps,
             kwargs={"task": _task.name},
         )
@@ -93,8 +85,8 @@ def check_control_against(control: str, policy_path: str | None) -> None:
 @EnvConfig.register_subclass("opfa")
 @dataclass
 class OpfaEnvConfig(EnvConfig):
-    """A task of the benchmark with one hand, or two (`lift_tray`); see `OpfaSimEnv` and `OpfaBimanualEnv`
-    for the observation and action layouts."""
+    """A task of the benchmark with one hand, or two (`lift_tray`); see `OpfaSimEnv` for the observation
+    and action layouts."""
 
     task: str | None = "lift"
     hand: str = "leap"
@@ -126,7 +118,7 @@ class OpfaEnvConfig(EnvConfig):
 
     def __post_init__(self) -> None:
         with flag("env.task"):
-            check_any_task(self.task)
+            check_task(self.task)
         policy_path = parser.get_path_arg("policy")
         hands = self.hand.split(HANDS_SEPARATOR)
         states = [path for path in checkpoint_files.state_files(policy_path) if path.is_file()]
@@ -141,24 +133,16 @@ class OpfaEnvConfig(EnvConfig):
             parse_cameras(self.depth_cameras)
         with flag("env.rgb_cameras"):
             parse_cameras(self.rgb_cameras)
-        if self.two_hands:
-            with flag("env.hand"):
-                specs = [load_spec(hand) for hand in task_hands(self.task, self.hand)]
-            with flag("env.obs_type"):
-                check_choice("obs_type of a two-hand task", self.obs_type, TWO_HAND_OBS_TYPES)
-            with flag("env.control"):
-                check_choice("control of a two-hand task", self.control, ["joints"])
-            state = action = sum(len(WRIST_JOINTS) + len(spec.joints) for spec in specs)
-        else:
-            with flag("env.hand"):
-                spec = load_spec(*task_hands(self.task, self.hand))
-            with flag("env.control"):
+        with flag("env.hand"):
+            specs = [load_spec(hand) for hand in task_hands(self.task, self.hand)]
+        with flag("env.control"):
+            for spec in specs:
                 check_control(self.control, spec.name, len(spec.joints))
-                check_control_against(self.control, policy_path)
-            if self.control == "ee_delta":
-                state, action = len(EE_STATE_NAMES), len(EE_ACTION_NAMES)
-            else:
-                state = action = len(WRIST_JOINTS) + len(spec.joints)
+            check_control_against(self.control, policy_path)
+        if self.control == "ee_delta":
+            state, action = len(specs) * len(EE_STATE_NAMES), len(specs) * len(EE_ACTION_NAMES)
+        else:
+            state = action = sum(len(WRIST_JOINTS) + len(spec.joints) for spec in specs)
         if self.policy_action_width is not None and self.policy_action_width < 1:
             raise ValueError(f"--env.policy_action_width: a positive width, not {self.policy_action_width}")
         converted = converted_action_width(policy_path)
@@ -196,10 +180,6 @@ class OpfaEnvConfig(EnvConfig):
         return PolicyProcessorPipeline(steps=steps), PolicyProcessorPipeline(steps=[])
 
     @property
-    def two_hands(self) -> bool:
-        return self.task in BIMANUAL_TASKS
-
-    @property
     def hand_name(self) -> str:
         """The robot the frames come from, by its hands' names (`inspire`; `inspire+xhand`, left first)."""
         return HANDS_SEPARATOR.join(load_spec(hand).name for hand in task_hands(self.task, self.hand))
@@ -210,18 +190,11 @@ class OpfaEnvConfig(EnvConfig):
 
     @property
     def gym_id(self) -> str:
-        return gym_id(check_any_task(self.task))
+        return gym_id(check_task(self.task))
 
     @property
     def gym_kwargs(self) -> dict:
-        steps = self.episode_length or ALL_TASKS[self.task].episode_steps
-        if self.two_hands:
-            return {
-                "hands": self.hand, "regions": self.regions, "obs_type": self.obs_type,
-                "pointcloud_source": self.pointcloud_source, "n_points": self.n_points,
-                "depth_cameras": self.depth_cameras, "fps": self.fps, "render_width": self.render_width,
-                "render_height": self.render_height, "max_episode_steps": steps,
-            }  # fmt: skip
+        steps = self.episode_length or TASKS[self.task].episode_steps
         return {
             "hand": self.hand,
             "regions": self.regions,

@@ -12,7 +12,7 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 
-from lerobot_opfa.envs.scene import HOME, WRIST_JOINTS, WRIST_RANGE
+from lerobot_opfa.envs.scene import WRIST_JOINTS, WRIST_RANGE
 from lerobot_opfa.hands.model import HandModel
 
 CONTROLS = ("joints", "ee_delta")
@@ -44,10 +44,11 @@ def gripper_closed(hand: HandModel) -> np.ndarray:
 
 
 class EndEffectorDeltas:
-    """`ee_delta` control of a one-joint gripper: turns a step and a grasp command into the wrist's and
-    the gripper's targets, keeping the wrist's target between steps, and reads the state it reports."""
+    """`ee_delta` control of a one-joint gripper on a wrist whose home is `home`: turns a step and a grasp
+    command into the wrist's and the gripper's targets, keeping the wrist's target between steps, and
+    reads the state it reports."""
 
-    def __init__(self, hand: HandModel) -> None:
+    def __init__(self, hand: HandModel, home: np.ndarray) -> None:
         check_control("ee_delta", hand.name, hand.dof)
         self.open, self.closed = float(hand.pose("open")[0]), float(gripper_closed(hand)[0])
         self.action_space = gym.spaces.Box(
@@ -55,10 +56,11 @@ class EndEffectorDeltas:
             np.array([MAX_STEP] * 3 + [MAX_TURN, 1.0], np.float32),
             dtype=np.float32,
         )
-        self.target = HOME.copy()
+        self.home = home
+        self.target = home.copy()
 
     def reset(self) -> None:
-        self.target = HOME.copy()
+        self.target = self.home.copy()
 
     def targets(self, action: np.ndarray) -> np.ndarray:
         """The wrist pose and gripper joint targets of an `ee_delta` action (already within its space)."""

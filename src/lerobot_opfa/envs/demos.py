@@ -18,8 +18,8 @@ from tqdm.contrib.logging import logging_redirect_tqdm
 from lerobot_opfa.datasets.io import new_dataset
 from lerobot_opfa.datasets.joint_map import HANDS_SEPARATOR
 from lerobot_opfa.datasets.layout import OPFA_META_FILE, hand_entry
-from lerobot_opfa.envs.bimanual import OpfaBimanualEnv, scripted_expert, sim_env
 from lerobot_opfa.envs.env import OpfaSimEnv
+from lerobot_opfa.envs.experts import ScriptedExpert
 from lerobot_opfa.envs.regions import parse_regions
 from lerobot_opfa.envs.tasks import ENV_STATE_DIM
 from lerobot_opfa.features import OBS_POINTCLOUD
@@ -54,7 +54,7 @@ def expert_episode(
     """Run the scripted expert for one seeded episode; returns its frames (up to its first success, then
     `hold` more) and whether it succeeded."""
     obs, _ = env.reset(seed=seed, options={"region": region} if region else None)
-    expert = scripted_expert(env, np.random.default_rng(seed))
+    expert = ScriptedExpert(env, np.random.default_rng(seed))
     frames, readings, success, held = [], [], False, 0
     steps = env.task.episode_steps
     for step in range(steps + hold):
@@ -78,7 +78,7 @@ def expert_episode(
                 break
             held += 1
     if success:  # training refuses a hand read past its limits: say so now, not after the recording
-        for side, hand in env.hands_by_side.items():
+        for side, hand in env.hand_models.items():
             hand.check_within_limits(
                 torch.from_numpy(np.stack([reading[side] for reading in readings])),
                 f"the expert's episode (seed {seed}" + (f", {side} hand)" if side else ")"),
@@ -106,7 +106,7 @@ def record_demos(
     appears whole or not at all (and only with `overwrite` replaces an existing folder). No successful
     episode at all is an error."""
     region_names = parse_regions(regions)
-    env = sim_env(
+    env = OpfaSimEnv(
         task, hand, region_names, obs_type="pointcloud_state", pointcloud_source=pointcloud_source,
         n_points=n_points, depth_cameras=depth_cameras, control=control,
     )  # fmt: skip
@@ -184,14 +184,14 @@ def _record(env: OpfaSimEnv, episodes: int, dataset, region_names: list[str], se
         "depth_cameras": list(env.depth_cameras) if env.pointcloud_source == "depth" else [],
     }
     (Path(root) / "meta" / META_FILE).write_text(json.dumps({**meta, "episodes": records}, indent=2))
-    specs = [hand.spec for hand in env.hands_by_side.values()]
+    specs = [hand.spec for hand in env.hand_models.values()]
     users = {spec.name: hand_entry(spec) for spec in specs if hand_ref(spec) != spec.name}
     record = {"hands": users} if users else {}  # a user's hand: later commands find it from the dataset
-    if isinstance(env, OpfaBimanualEnv):
+    if len(env.hand_models) > 1:
         record["joint_map"] = env.joint_map.to_dict()  # which entries are which side's hand
     if record:
         (Path(root) / OPFA_META_FILE).write_text(json.dumps(record, indent=2))
 
 
-def _hand_path(env: OpfaSimEnv | OpfaBimanualEnv) -> str:
-    return HANDS_SEPARATOR.join(str(hand.spec.path) for hand in env.hands_by_side.values())
+def _hand_path(env: OpfaSimEnv) -> str:
+    return HANDS_SEPARATOR.join(str(hand.spec.path) for hand in env.hand_models.values())

@@ -1,13 +1,16 @@
-"""`OpfaSimEnv`: a gymnasium env for one (task, hand) pair with LeRobot's observation keys."""
+"""`OpfaSimEnv`: a gymnasium env of one task for one hand on one arm, or two on two, with LeRobot's
+observation keys."""
 
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 
 import gymnasium as gym
 import mujoco
 import numpy as np
 
+from lerobot_opfa.datasets.joint_map import HANDS_SEPARATOR, SIDES, JointMap, sided
 from lerobot_opfa.envs.control import EE_ACTION_NAMES, EE_STATE_NAMES, EndEffectorDeltas, check_control
 from lerobot_opfa.envs.observation import ColourCameras, SceneViews
 from lerobot_opfa.envs.regions import REGIONS, parse_regions
@@ -16,10 +19,12 @@ from lerobot_opfa.envs.scene import (
     HOME,
     WRIST_JOINTS,
     WRIST_RANGE,
-    attach_hand,
+    Arm,
+    Scene,
     base_spec,
+    build_scene,
 )
-from lerobot_opfa.envs.tasks import ENV_STATE_DIM, Placement, make_task
+from lerobot_opfa.envs.tasks import ENV_STATE_DIM, Placement, Task, make_task, task_hands
 from lerobot_opfa.hands.model import HandModel
 from lerobot_opfa.hands.registry import load_hand
 
@@ -28,6 +33,8 @@ logger = logging.getLogger(__name__)
 OBS_TYPES = ("pointcloud", "state", "pointcloud_state", "rgb", "pointcloud_rgb")
 POINTCLOUD_SOURCES = ("depth", "geometry")
 SETTLE_STEPS = 20  # physics steps after reset so objects come to rest
+HOME_Y = 0.16
+"""m: with two arms, each wrist's home this far to its side of the table's centre line (left at +y)."""
 
 
 def check_choice(kind: str, value: str, valid: tuple[str, ...] | list[str]) -> str:
@@ -44,8 +51,8 @@ def parse_cameras(cameras: str | list[str]) -> list[str]:
 
 
 def observation_spaces(obs_type: str, state_width: int, n_points: int) -> dict[str, gym.spaces.Box]:
-    """The numeric observations both scenes give: `agent_pos`, and by `obs_type` the point cloud and the
-    task's object state."""
+    """The numeric observations: `agent_pos`, and by `obs_type` the point cloud and the task's object
+    state."""
     spaces = {"agent_pos": gym.spaces.Box(-np.inf, np.inf, (state_width,), np.float64)}
     if "pointcloud" in obs_type:
         spaces["pointcloud"] = gym.spaces.Box(-np.inf, np.inf, (n_points * 3,), np.float32)
@@ -54,16 +61,55 @@ def observation_spaces(obs_type: str, state_width: int, n_points: int) -> dict[s
     return spaces
 
 
-class OpfaSimEnv(gym.Env):
-    """A table-top task for any registered hand on a floating wrist.
+def arm_homes(sides: tuple[str | None, ...]) -> dict[str | None, np.ndarray]:
+    """Each arm's wrist pose at home: one arm at `HOME`, two each `HOME_Y` to its side."""
+    if sides == (None,):
+        return {None: HOME}
+    return {
+        side: HOME + [0.0, sign * HOME_Y, 0.0, 0.0, 0.0, 0.0]
+        for side, sign in zip(SIDES, (1, -1), strict=True)
+    }
 
-    Action and `agent_pos` share one layout: the wrist's tool-frame pose (x, y, z in metres, then yaw,
-    pitch, roll in radians; the approach axis points down at zero angles) followed by the hand's actuated
-    joints in its spec's order. Actions are absolute position targets. `pointcloud` is (n_points * 3,)
+
+def arm_entry(side: str | None, name: str) -> str:
+    """An entry of one arm: its own name on a one-armed robot, `<side>_<name>` on a two-armed one."""
+    return name if side is None else sided(side, name)
+
+
+def numpy(x) -> np.ndarray:
+    return x.double().cpu().numpy()
+
+
+@dataclass
+class ArmView:
+    """What one arm's scripted expert reads of its env: the arm's hand and addresses, its part of the
+    task as placed, where it stands at home."""
+
+    hand_model: HandModel
+    hand_open: np.ndarray
+    arm: Arm
+    scene: Scene
+    task: Task
+    placement: Placement
+    data: mujoco.MjData
+    home: np.ndarray
+
+
+class OpfaSimEnv(gym.Env):
+    """A table-top task for any registered hand on a floating wrist, or for two (a two-hand task,
+    `hand="inspire+xhand"`: left, then right), each on a wrist of its own.
+
+    Action and `agent_pos` share one layout, per arm (left first): the wrist's tool-frame pose (x, y, z in
+    metres, then yaw, pitch, roll in radians; the approach axis points down at zero angles) followed by
+    the hand's actuated joints in its spec's order; with two arms each entry is named `<side>_<name>`, as
+    LeRobot's two-armed robots name theirs (`state_names`, `joint_map`). A left arm carries the right-hand
+    model of its hand (the models are right hands, and a left hand's policy entries are the right model's
+    at the same joints). Actions are absolute position targets. `pointcloud` is (n_points * 3,)
     world-frame xyz, flattened so LeRobot datasets built from it can be merged; `environment_state` is the
     task's object state (`tasks.ENV_STATE_DIM`); `pixels` (obs types with `rgb`) holds each of
     `rgb_cameras` as `<name>_rgb`, (camera_height, camera_width, 3) uint8, as the rig records them.
-    With `control="ee_delta"` (a gripper), action and `agent_pos` hold other entries (`envs.control`).
+    With `control="ee_delta"` (a gripper on each arm), action and `agent_pos` hold other entries
+    (`envs.control`), arm by arm.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
@@ -87,9 +133,17 @@ class OpfaSimEnv(gym.Env):
         control: str = "joints",
     ) -> None:
         self.task = make_task(task)
-        self.hand_model = load_hand(hand)
-        check_control(control, self.hand_model.name, self.hand_model.dof)
-        self.ee = EndEffectorDeltas(self.hand_model) if control == "ee_delta" else None
+        names = task_hands(task, hand)
+        sides = (None,) if len(names) == 1 else SIDES
+        self.hand_models: dict[str | None, HandModel] = dict(zip(sides, map(load_hand, names), strict=True))
+        for model in self.hand_models.values():
+            check_control(control, model.name, model.dof)
+        self.homes = arm_homes(sides)
+        self.ee = (
+            {side: EndEffectorDeltas(hand, self.homes[side]) for side, hand in self.hand_models.items()}
+            if control == "ee_delta"
+            else None
+        )
         self.regions = parse_regions(regions)
         self.obs_type = check_choice("obs_type", obs_type, OBS_TYPES)
         self.pointcloud_source = check_choice("pointcloud source", pointcloud_source, POINTCLOUD_SOURCES)
@@ -102,23 +156,27 @@ class OpfaSimEnv(gym.Env):
 
         spec = base_spec()
         self.task.build(spec)
-        self.scene = attach_hand(spec, self.hand_model)
+        self.scene = build_scene(spec, self.hand_models)
         self.task.bind(self.scene)
         self.model = self.scene.model
         self.data = mujoco.MjData(self.model)
         self.n_substeps = max(1, round(1.0 / (fps * self.model.opt.timestep)))
-        self.wrist_qvel = np.array([self.model.jnt_dofadr[self.model.joint(j).id] for j in WRIST_JOINTS])
-        self.ctrl_index = self.scene.ctrl
-        self.hand_open = self.hand_model.pose("open").double().cpu().numpy()
-        self.hand_open_all = (
-            self.hand_model.expand(self.hand_model.pose("open")[None])[0].double().cpu().numpy()
-        )
+        self.ctrl_index = np.concatenate([arm.ctrl for arm in self.scene.arms.values()])
+        self.hand_open = {side: numpy(hand.pose("open")) for side, hand in self.hand_models.items()}
 
-        low = np.concatenate([WRIST_RANGE[:, 0], self.hand_model.lower.double().cpu().numpy()])
-        high = np.concatenate([WRIST_RANGE[:, 1], self.hand_model.upper.double().cpu().numpy()])
+        low = np.concatenate([[*WRIST_RANGE[:, 0], *numpy(h.lower)] for h in self.hand_models.values()])
+        high = np.concatenate([[*WRIST_RANGE[:, 1], *numpy(h.upper)] for h in self.hand_models.values()])
         self.target_space = gym.spaces.Box(low.astype(np.float32), high.astype(np.float32), dtype=np.float32)
-        """The wrist's and the hand's targets (what `joints` control takes)."""
-        self.action_space = self.target_space if self.ee is None else self.ee.action_space
+        """The wrists' and the hands' targets (what `joints` control takes)."""
+        if self.ee is None:
+            self.action_space = self.target_space
+        else:
+            spaces = [ee.action_space for ee in self.ee.values()]
+            self.action_space = gym.spaces.Box(
+                np.concatenate([s.low for s in spaces]),
+                np.concatenate([s.high for s in spaces]),
+                dtype=np.float32,
+            )
         spaces = observation_spaces(self.obs_type, len(self.state_names), n_points)
         if "rgb" in self.obs_type:
             picture = gym.spaces.Box(0, 255, (*self.camera_size, 3), np.uint8)
@@ -137,38 +195,75 @@ class OpfaSimEnv(gym.Env):
 
     @property
     def state_names(self) -> list[str]:
-        if self.ee is not None:
-            return list(EE_STATE_NAMES)
-        return list(WRIST_JOINTS) + list(self.hand_model.joint_names)
+        per_arm = {
+            side: EE_STATE_NAMES if self.ee is not None else (*WRIST_JOINTS, *hand.joint_names)
+            for side, hand in self.hand_models.items()
+        }
+        return [arm_entry(side, name) for side, names in per_arm.items() for name in names]
 
     @property
     def action_names(self) -> list[str]:
-        return self.state_names if self.ee is None else list(EE_ACTION_NAMES)
+        if self.ee is None:
+            return self.state_names
+        return [arm_entry(side, name) for side in self.hand_models for name in EE_ACTION_NAMES]
+
+    @property
+    def joint_map(self) -> JointMap | None:
+        """How its state and action hold the wrists and the hands, as a recorded robot's map says it
+        (none under `ee_delta`: its entries are read through the map a policy was trained with)."""
+        if self.ee is not None:
+            return None
+        names = self.state_names
+        specs = {side: hand.spec for side, hand in self.hand_models.items()}
+        if None in specs:
+            return JointMap.named_after(specs[None], names, names)
+        return JointMap.named_after_arms(specs, names, names)
 
     @property
     def hand_name(self) -> str:
-        return self.hand_model.name
-
-    @property
-    def hands_by_side(self) -> dict[str | None, HandModel]:
-        """The hand, by side (none: one hand)."""
-        return {None: self.hand_model}
+        """The robot by its hands, left first (`inspire`; `inspire+xhand`): what a policy's pipeline names it
+        by."""
+        return HANDS_SEPARATOR.join(hand.name for hand in self.hand_models.values())
 
     def hand_readings(self) -> dict[str | None, np.ndarray]:
-        """The hand's joints as the simulator holds them now (by side: none, one hand)."""
-        return {None: self.data.qpos[self.scene.hand_qpos]}
+        """Each side's hand joints as the simulator holds them now (one arm: side None)."""
+        return {side: self.data.qpos[arm.hand_qpos] for side, arm in self.scene.arms.items()}
+
+    def arm(self, side: str | None) -> ArmView:
+        """One arm as a single-hand scripted expert reads an env."""
+        task, placement = self.task.for_arm(side, self.placement)
+        return ArmView(
+            hand_model=self.hand_models[side],
+            hand_open=self.hand_open[side],
+            arm=self.scene.arms[side],
+            scene=self.scene,
+            task=task,
+            placement=placement,
+            data=self.data,
+            home=self.homes[side],
+        )
 
     def command(self, targets: np.ndarray) -> np.ndarray:
-        """The action of this env's control that takes the wrist and hand to `targets` (what the scripted
-        experts give)."""
-        return targets if self.ee is None else self.ee.command(targets)
+        """The action of this env's control that takes the wrists and hands to `targets` (what the
+        scripted experts give)."""
+        if self.ee is None:
+            return targets
+        cuts = np.cumsum([len(WRIST_JOINTS) + hand.dof for hand in self.hand_models.values()])[:-1]
+        return np.concatenate(
+            [ee.command(t) for ee, t in zip(self.ee.values(), np.split(targets, cuts), strict=True)]
+        )
 
     def observation(self) -> dict[str, np.ndarray]:
-        wrist, hand = self.data.qpos[self.scene.wrist_qpos], self.data.qpos[self.scene.hand_qpos]
+        qpos = self.data.qpos
+        arms = self.scene.arms
         if self.ee is None:
-            obs = {"agent_pos": np.concatenate([wrist, hand])}
+            state = [qpos[np.r_[arm.wrist_qpos, arm.hand_qpos]] for arm in arms.values()]
         else:
-            obs = {"agent_pos": self.ee.state(wrist, self.data.qvel[self.wrist_qvel], hand[0])}
+            state = [
+                ee.state(qpos[arm.wrist_qpos], self.data.qvel[arm.wrist_qvel], qpos[arm.hand_qpos][0])
+                for ee, arm in zip(self.ee.values(), arms.values(), strict=True)
+            ]
+        obs = {"agent_pos": np.concatenate(state)}
         if "pointcloud" in self.obs_type:
             obs["pointcloud"] = self.views.point_cloud(self.data, self.np_random)
         if "state" in self.obs_type:
@@ -188,19 +283,23 @@ class OpfaSimEnv(gym.Env):
         ]
         xy = REGIONS[self.region].sample(self.np_random)
         self.placement = self.task.place(self.scene, self.data, xy, self.np_random)
-        self.data.qpos[self.scene.wrist_qpos] = HOME
-        self.data.qpos[self.scene.chain_qpos] = self.hand_open_all
-        self.data.ctrl[self.ctrl_index] = np.concatenate([HOME, self.hand_open])
+        for side, arm in self.scene.arms.items():
+            hand = self.hand_models[side]
+            self.data.qpos[arm.wrist_qpos] = self.homes[side]
+            self.data.qpos[arm.chain_qpos] = numpy(hand.expand(hand.pose("open")[None])[0])
+            self.data.ctrl[arm.ctrl] = np.concatenate([self.homes[side], self.hand_open[side]])
         mujoco.mj_forward(self.model, self.data)
         mujoco.mj_step(self.model, self.data, SETTLE_STEPS)
-        if self.ee is not None:
-            self.ee.reset()
+        for ee in (self.ee or {}).values():
+            ee.reset()
         return self.observation(), {"is_success": False, "region": self.region}
 
     def step(self, action: np.ndarray):
         action = np.clip(np.asarray(action, dtype=np.float64), self.action_space.low, self.action_space.high)
         if self.ee is not None:
-            action = np.clip(self.ee.targets(action), self.target_space.low, self.target_space.high)
+            steps = np.split(action, len(self.ee))
+            targets = np.concatenate([ee.targets(a) for ee, a in zip(self.ee.values(), steps, strict=True)])
+            action = np.clip(targets, self.target_space.low, self.target_space.high)
         self.data.ctrl[self.ctrl_index] = action
         mujoco.mj_step(self.model, self.data, self.n_substeps)
         if self.data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number:

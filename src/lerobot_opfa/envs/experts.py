@@ -14,8 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from lerobot_opfa.envs.control import gripper_closed
-from lerobot_opfa.envs.env import OpfaSimEnv
-from lerobot_opfa.envs.scene import HOME, tool_to_world
+from lerobot_opfa.envs.env import ArmView, OpfaSimEnv
+from lerobot_opfa.envs.scene import tool_to_world
 from lerobot_opfa.envs.tasks import Lift, LiftBox, PickPlace, PressButton, PullDrawer
 
 # Hands close this far past the spec's grasp pose (clipped to the limits), so the servos keep squeezing an
@@ -58,9 +58,30 @@ class Waypoint:
 
 
 class ScriptedExpert:
-    """Plans one episode from the state after `env.reset` and returns an action per step."""
+    """Plans one episode from the state after `env.reset` and returns an action per step: one arm's
+    expert per arm, their waypoints timed alike so that two hands close, and lift, together."""
 
     def __init__(self, env: OpfaSimEnv, rng: np.random.Generator) -> None:
+        self.env = env
+        self.arms = [ArmExpert(env.arm(side), rng) for side in env.hand_models]
+        steps = np.max([[w.steps for w in arm.plan] for arm in self.arms], axis=0)
+        for arm in self.arms:
+            for waypoint, n in zip(arm.plan, steps, strict=True):
+                waypoint.steps = int(n)
+            arm.schedule = np.cumsum(steps)
+
+    def act(self) -> np.ndarray:
+        return np.concatenate([arm.act() for arm in self.arms])
+
+    @property
+    def done(self) -> bool:
+        return all(arm.done for arm in self.arms)
+
+
+class ArmExpert:
+    """One arm's expert: plans its part of the episode and gives its wrist's and hand's targets."""
+
+    def __init__(self, env: ArmView, rng: np.random.Generator) -> None:
         self.env, self.rng = env, rng
         hand = env.hand_model
         self.open = env.hand_open
@@ -70,9 +91,8 @@ class ScriptedExpert:
             self.closed = gripper_closed(hand)
         else:
             self.closed = np.clip(self.open + SQUEEZE * (self.grasp - self.open), self.lower, self.upper)
-        self.tool = env.scene.tool
-        home = getattr(env, "home", HOME)  # an arm of a two-armed env stands to its side
-        self.start = Waypoint(np.array([*home[:3], home[3]]), 0.0, 1)
+        self.tool = env.arm.tool
+        self.start = Waypoint(np.array([*env.home[:3], env.home[3]]), 0.0, 1)
         self.plan = self._plan()
         self.schedule = np.cumsum([w.steps for w in self.plan])
         self.t = 0
@@ -172,7 +192,7 @@ class ScriptedExpert:
             return waypoint.pose
         if self.held is None:
             obj = self.env.task.env_state(self.env.scene, self.env.data)[:3]
-            self.held = self.env.data.qpos[self.env.scene.wrist_qpos[:3]] - obj
+            self.held = self.env.data.qpos[self.env.arm.wrist_qpos[:3]] - obj
         return waypoint.pose + [*self.held, 0.0]
 
     def act(self) -> np.ndarray:

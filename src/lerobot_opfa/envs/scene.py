@@ -38,17 +38,34 @@ LOOK_AT = (0.02, 0.0, 0.06)
 
 
 @dataclass
-class Scene:
-    """A compiled scene and the addresses an env needs to read and drive one arm (a wrist and its hand)."""
+class Arm:
+    """The addresses an env needs to read and drive one arm (a wrist and its hand) of a compiled scene."""
 
-    model: mujoco.MjModel
     hand: HandModel
     tool: ToolFrame
     wrist_qpos: np.ndarray  # qpos addresses of the six wrist joints
+    wrist_qvel: np.ndarray  # their qvel addresses
     hand_qpos: np.ndarray  # qpos addresses of the hand's actuated joints, in spec order
     chain_qpos: np.ndarray  # qpos addresses of every hand joint, in `hand.chain_joint_names` order
     hand_geoms: np.ndarray  # geom ids of the hand
     ctrl: np.ndarray  # actuator ids of the wrist's six joints, then the hand's, in spec order
+
+
+@dataclass
+class Scene:
+    """A compiled scene of one arm (side None) or two (`left`, `right`), and what tasks read of the whole."""
+
+    model: mujoco.MjModel
+    arms: dict[str | None, Arm]
+
+    @property
+    def hand_geoms(self) -> np.ndarray:
+        return np.concatenate([arm.hand_geoms for arm in self.arms.values()])
+
+    @property
+    def wrist_qpos(self) -> np.ndarray:
+        """Each arm's six wrist joints' qpos addresses, arm by arm."""
+        return np.concatenate([arm.wrist_qpos for arm in self.arms.values()])
 
 
 def look_at(pos: tuple[float, float, float], target: tuple[float, float, float]) -> list[float]:
@@ -95,7 +112,7 @@ def _add_carriage(spec: mujoco.MjSpec, prefix: str = "") -> mujoco.MjsBody:
 
 
 def base_spec() -> mujoco.MjSpec:
-    """World, table, lights and cameras; tasks add their objects and `attach_hand` the hand."""
+    """World, table, lights and cameras; tasks add their objects and `build_scene` the arms."""
     spec = mujoco.MjSpec()
     spec.compiler.degree = False  # joint ranges below are in radians
     spec.option.timestep = TIMESTEP
@@ -124,10 +141,15 @@ def base_spec() -> mujoco.MjSpec:
     return spec
 
 
-def attach_hand(spec: mujoco.MjSpec, hand: HandModel) -> Scene:
-    """Mount the hand on the wrist carriage in its tool frame, compile, and index the result."""
-    tool = mount_hand(spec, hand)
-    return index_arm(spec.compile(), hand, tool)
+def build_scene(spec: mujoco.MjSpec, hands: dict[str | None, HandModel]) -> Scene:
+    """Mount each side's hand on a wrist carriage of its own (named `<side>/...`; one arm, side None:
+    unprefixed), compile, and index the result."""
+    prefixes = {side: f"{side}/" if side else "" for side in hands}
+    tools = {side: mount_hand(spec, hand, prefixes[side]) for side, hand in hands.items()}
+    model = spec.compile()
+    return Scene(
+        model, {side: index_arm(model, hand, tools[side], prefixes[side]) for side, hand in hands.items()}
+    )
 
 
 def mount_hand(spec: mujoco.MjSpec, hand: HandModel, prefix: str = "") -> ToolFrame:
@@ -155,18 +177,20 @@ def mount_hand(spec: mujoco.MjSpec, hand: HandModel, prefix: str = "") -> ToolFr
     return tool
 
 
-def index_arm(model: mujoco.MjModel, hand: HandModel, tool: ToolFrame, prefix: str = "") -> Scene:
+def index_arm(model: mujoco.MjModel, hand: HandModel, tool: ToolFrame, prefix: str = "") -> Arm:
     """The addresses of the arm `mount_hand` added under `prefix`, in the compiled `model`."""
     hand_bodies = {i for i in range(model.nbody) if model.body(i).name.startswith(f"{prefix}hand/")}
 
     def qpos(joints: list[str]) -> np.ndarray:
         return np.array([model.jnt_qposadr[model.joint(j).id] for j in joints])
 
-    return Scene(
-        model=model,
+    wrist = [f"{prefix}{j}" for j in WRIST_JOINTS]
+
+    return Arm(
         hand=hand,
         tool=tool,
-        wrist_qpos=qpos([f"{prefix}{j}" for j in WRIST_JOINTS]),
+        wrist_qpos=qpos(wrist),
+        wrist_qvel=np.array([model.jnt_dofadr[model.joint(j).id] for j in wrist]),
         hand_qpos=qpos([f"{prefix}hand/{j}" for j in hand.joint_names]),
         chain_qpos=qpos([f"{prefix}hand/{j}" for j in hand.chain_joint_names]),
         hand_geoms=np.array([g for g in range(model.ngeom) if model.geom_bodyid[g] in hand_bodies]),

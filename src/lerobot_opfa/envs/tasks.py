@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from lerobot_opfa.datasets.joint_map import HANDS_SEPARATOR, SIDES
 from lerobot_opfa.envs.regions import GRID_X, GRID_Y
 from lerobot_opfa.envs.scene import OBJECT_FRICTION, Scene
 
@@ -46,6 +47,8 @@ class Task:
     """The body the hand acts on (what it must touch to do the task)."""
     episode_steps: int
     """Episode length in steps at the default 20 Hz (the scripted experts finish well within)."""
+    hands: int = 1
+    """How many hands (arms) the task takes."""
 
     def build(self, spec: mujoco.MjSpec) -> None:
         raise NotImplementedError
@@ -64,6 +67,10 @@ class Task:
 
     def success(self, scene: Scene, data: mujoco.MjData) -> bool:
         raise NotImplementedError
+
+    def for_arm(self, side: str | None, placement: Placement) -> tuple[Task, Placement]:
+        """What one arm's scripted expert does: this task as placed (a two-hand task: its part of it)."""
+        return self, placement
 
     def touched(self, scene: Scene, data: mujoco.MjData) -> bool:
         """Whether the hand is in contact with the task's object now."""
@@ -355,13 +362,139 @@ class PullDrawer(Task):
         return f"pull: the drawer opened {100 * opening:.0f} cm of the {100 * self.opening:.0f} needed"
 
 
-TASKS: dict[str, type[Task]] = {t.name: t for t in (Lift, LiftBox, PickPlace, PressButton, PullDrawer)}
+class LiftTray(Task):
+    """Lift a tray by its two handles, both 6 cm up and each half level within 10 degrees. The tray is two
+    halves on a hinge along its middle, each a plate with a handle (the `lift_box` box): a hand lifting
+    one handle folds its half up about the hinge, or lifts the tray with the other half hanging, so one
+    hand cannot do it (a rigid tray held by one handle was lifted level for a moment by one hand, the
+    hand's grip torque enough for its 0.8 kg)."""
+
+    name = "lift_tray"
+    hands = 2
+    episode_steps = 130
+    description = "lift the tray with both hands"
+    object_body = "tray"
+    halves = {"left": "tray", "right": "tray_right"}
+    handle = LiftBox()
+    handle_y = 0.15  # m, each handle's centre from the hinge, along the tray's y
+    plate_half = (0.03, 0.075, 0.008)  # each half's plate, from the hinge to beyond its handle
+    plate_mass = 0.1
+    hinge_damping = 0.02
+    lift_height, max_tilt = 0.06, np.radians(10.0)
+    max_yaw = np.radians(5.0)
+    y_spread = 0.25
+    """The tray is placed in this fraction of a region's y span about the centre line, so each handle
+    stays on its own wrist's side of the table."""
+
+    def build(self, spec: mujoco.MjSpec) -> None:
+        body = spec.worldbody.add_body(name=self.object_body, pos=[0, 0, 0])
+        body.add_freejoint(name=self.object_body)
+        right = body.add_body(name=self.halves["right"], pos=[0, 0, 0])
+        right.add_joint(
+            name="tray_hinge", type=mujoco.mjtJoint.mjJNT_HINGE, axis=[1, 0, 0], damping=self.hinge_damping
+        )
+        size = [self.handle.half_width, self.handle.half_width, self.handle.half_height]
+        for half, sign in ((body, 1), (right, -1)):
+            _geom(
+                half, [0.2, 0.45, 0.85, 1], type=mujoco.mjtGeom.mjGEOM_BOX, size=size,
+                pos=[0, sign * self.handle_y, self.handle.half_height], mass=self.handle.mass,
+            )  # fmt: skip
+            _geom(
+                half, [0.85, 0.85, 0.8, 1], type=mujoco.mjtGeom.mjGEOM_BOX, size=list(self.plate_half),
+                pos=[0, sign * (self.plate_half[1] + 0.002), self.plate_half[2]], mass=self.plate_mass,
+            )  # fmt: skip
+
+    def bind(self, scene) -> None:
+        model = scene.model
+        self.qpos = model.jnt_qposadr[model.joint(self.object_body).id]
+        self.hinge = model.jnt_qposadr[model.joint("tray_hinge").id]
+        self.bodies = {side: model.body(name).id for side, name in self.halves.items()}
+
+    def place(self, scene, data: mujoco.MjData, xy: np.ndarray, rng: np.random.Generator) -> Placement:
+        xy = xy * [1.0, self.y_spread]
+        yaw = float(rng.uniform(-self.max_yaw, self.max_yaw))
+        data.qpos[self.qpos : self.qpos + 7] = [*xy, 0.0, np.cos(yaw / 2), 0, 0, np.sin(yaw / 2)]
+        data.qpos[self.hinge] = 0.0
+        return Placement(xy, yaw)
+
+    def handles(self, placement: Placement) -> dict[str, np.ndarray]:
+        """Each side's handle centre (x, y) on the table as placed (the left one at +y)."""
+        c, s = np.cos(placement.yaw), np.sin(placement.yaw)
+        return {
+            side: placement.xy + sign * self.handle_y * np.array([-s, c])
+            for side, sign in zip(SIDES, (1, -1), strict=True)
+        }
+
+    def for_arm(self, side: str | None, placement: Placement) -> tuple[Task, Placement]:
+        """Each arm lifts its handle as `lift_box` lifts a box."""
+        return self.handle, Placement(self.handles(placement)[side], placement.yaw)
+
+    def env_state(self, scene, data: mujoco.MjData) -> np.ndarray:
+        """The left half's pose (3 + 4), then the hinge angle in the articulation slot."""
+        state = np.zeros(ENV_STATE_DIM)
+        state[:7], state[-1] = _free_body_state(data, self.qpos), data.qpos[self.hinge]
+        return state
+
+    def tilts(self, data: mujoco.MjData) -> np.ndarray:
+        """Radians between each half's up axis and the world's (left, right)."""
+        return np.array([np.arccos(np.clip(data.xmat[self.bodies[side]][8], -1.0, 1.0)) for side in SIDES])
+
+    def handle_rises(self, data: mujoco.MjData) -> np.ndarray:
+        """How far each handle's centre (left, right) stands above where it rests on the table."""
+        rises = []
+        for side, sign in zip(SIDES, (1, -1), strict=True):
+            body = self.bodies[side]
+            local = np.array([0.0, sign * self.handle_y, self.handle.half_height])
+            rises.append(
+                data.xpos[body][2] + data.xmat[body].reshape(3, 3)[2] @ local - self.handle.half_height
+            )
+        return np.array(rises)
+
+    def success(self, scene, data: mujoco.MjData) -> bool:
+        level = self.tilts(data).max() <= self.max_tilt
+        return bool(level and self.handle_rises(data).min() >= self.lift_height)
+
+    def failure(self, states: np.ndarray) -> str:
+        rise = states[:, 2].max() - states[0, 2]
+        fold = np.degrees(np.abs(states[:, -1]).max())
+        if rise < RISEN:
+            return f"grasp: the tray rose {100 * rise:.0f} cm (folded up to {fold:.0f} deg at its hinge)"
+        return f"lift: the tray rose {100 * rise:.0f} cm, folded up to {fold:.0f} deg at its hinge"
+
+
+TASKS: dict[str, type[Task]] = {
+    t.name: t for t in (Lift, LiftBox, PickPlace, PressButton, PullDrawer, LiftTray)
+}
+ONE_HAND_TASKS = [name for name, task in TASKS.items() if task.hands == 1]
+TWO_HAND_TASKS = [name for name, task in TASKS.items() if task.hands == 2]
 
 
 def check_task(name: str | None) -> str:
     if name not in TASKS:
         raise ValueError(f"unknown task '{name}'; valid tasks: {', '.join(TASKS)}")
     return name
+
+
+def task_hands(task: str, hand: str) -> list[str]:
+    """The hands a task's `hand` names: one, or for a two-hand task one per side (`inspire+xhand`)."""
+    if TASKS[check_task(task)].hands == 2:
+        return parse_hands(hand)
+    if HANDS_SEPARATOR in str(hand):
+        raise ValueError(
+            f"{task} takes one hand, got two ('{hand}'); the two-hand tasks are {', '.join(TWO_HAND_TASKS)}"
+        )
+    return [hand]
+
+
+def parse_hands(hands: str | list[str] | tuple[str, ...]) -> list[str]:
+    """'inspire+xhand', 'inspire,xhand' or a pair -> [left hand, right hand]."""
+    names = hands.replace(HANDS_SEPARATOR, ",").split(",") if isinstance(hands, str) else list(hands)
+    names = [n.strip() for n in names if n.strip()]
+    if len(names) != len(SIDES):
+        raise ValueError(
+            f"a two-armed scene takes two hands, left then right ('inspire+xhand'), got {hands!r}"
+        )
+    return names
 
 
 def make_task(name: str) -> Task:

@@ -33,10 +33,10 @@ import yaml
 from lerobot.robots.config import RobotConfig
 from lerobot.robots.robot import Robot
 
-from lerobot_opfa.envs.bimanual import check_any_task, sim_env, task_hands
-from lerobot_opfa.envs.env import parse_cameras
+from lerobot_opfa.envs.env import OpfaSimEnv, parse_cameras
 from lerobot_opfa.envs.observation import ColourCameras, DepthPointCloud
 from lerobot_opfa.envs.regions import parse_regions
+from lerobot_opfa.envs.tasks import check_task, task_hands
 from lerobot_opfa.flags import FlagError, flag
 from lerobot_opfa.hands.registry import load_spec
 from lerobot_opfa.pointclouds import DepthRig
@@ -76,7 +76,7 @@ class OpfaSimRobotConfig(RobotConfig):
     def __post_init__(self) -> None:
         super().__post_init__()
         with flag("robot.task"):
-            check_any_task(self.task)
+            check_task(self.task)
         with flag("robot.hand"):
             for hand in task_hands(self.task, self.hand):
                 load_spec(hand)
@@ -98,7 +98,7 @@ class OpfaSimRobot(Robot):
     def __init__(self, config: OpfaSimRobotConfig):
         super().__init__(config)
         self.config = config
-        self.env = sim_env(config.task, config.hand, config.regions, obs_type="state", fps=config.fps)
+        self.env = OpfaSimEnv(config.task, config.hand, config.regions, obs_type="state", fps=config.fps)
         # what LeRobot records as the dataset's robot_type: the hand(s), which this package reads it as
         self.name = self.robot_type = self.env.hand_name
         self.joint_names = list(self.env.state_names)

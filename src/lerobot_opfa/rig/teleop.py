@@ -12,7 +12,6 @@ import numpy as np
 from lerobot.teleoperators.config import TeleoperatorConfig
 from lerobot.teleoperators.teleoperator import Teleoperator
 
-from lerobot_opfa.envs.bimanual import BimanualExpert, scripted_expert
 from lerobot_opfa.envs.experts import ScriptedExpert
 from lerobot_opfa.rig.robot import LIVE_RIGS, POSITION
 
@@ -31,7 +30,7 @@ class OpfaExpert(Teleoperator):
         super().__init__(config)
         self.config = config
         self._connected = False
-        self._expert: ScriptedExpert | BimanualExpert | None = None
+        self._expert: ScriptedExpert | None = None
         self._episode: int | None = None
 
     @property
@@ -73,7 +72,7 @@ class OpfaExpert(Teleoperator):
     def get_action(self) -> dict[str, Any]:
         rig = self.rig
         if rig.episode != self._episode:  # the rig placed a new scene: plan it
-            self._expert = scripted_expert(rig.env, np.random.default_rng(rig.config.seed + rig.episode))
+            self._expert = ScriptedExpert(rig.env, np.random.default_rng(rig.config.seed + rig.episode))
             self._episode = rig.episode
         action = self._expert.act()
         return {f"{n}{POSITION}": float(v) for n, v in zip(rig.joint_names, action, strict=True)}
