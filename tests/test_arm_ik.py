@@ -24,7 +24,7 @@ def arm(name: str) -> ArmChain:
     path, flange, _ = ARMS[name]
     if not (ROBOTS / path).is_file():
         pytest.fail(f"example-robot-data's {name} not found at {ROBOTS / path}; install the [test] extra")
-    return ArmChain.from_urdf(ROBOTS / path, flange)
+    return ArmChain.from_model(ROBOTS / path, flange)
 
 
 def errors_mm_deg(
@@ -74,4 +74,4 @@ def test_a_pose_out_of_reach_is_answered_with_the_joints_nearest_it_inside_the_l
 
 def test_a_flange_that_is_not_a_link_is_one_line_naming_it():
     with pytest.raises(ValueError, match=r"flange link 'tool9' is not a link of the model \(.*tool0"):
-        ArmChain.from_urdf(ROBOTS / ARMS["ur5"][0], "tool9")
+        ArmChain.from_model(ROBOTS / ARMS["ur5"][0], "tool9")

@@ -10,6 +10,7 @@ import sys
 from draccus.utils import DecodingError
 
 from lerobot_opfa import demo, train
+from lerobot_opfa.arms import commands as arm_commands
 from lerobot_opfa.datasets import commands as dataset_commands
 from lerobot_opfa.envs import choose_headless_gl
 from lerobot_opfa.envs import commands as sim_commands
@@ -24,6 +25,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = OneLineParser(prog="lerobot-opfa", description=__doc__)
     subparsers = parser.add_subparsers(dest="command", required=True)
     hands_commands.add_commands(subparsers)
+    arm_commands.add_commands(subparsers)
     sim_commands.add_commands(subparsers)
     dataset_commands.add_commands(subparsers)
     galr_commands.add_commands(subparsers)

@@ -8,9 +8,13 @@ the current joints converges in a few iterations (`benchmarks/results/ik.json`).
 
 from __future__ import annotations
 
+import contextlib
+import io
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
+import mujoco
 import pytorch_kinematics as pk
 import torch
 from torch import Tensor
@@ -30,17 +34,25 @@ class ArmChain:
     upper: Tensor
 
     @classmethod
-    def from_urdf(cls, path: Path | str, flange: str) -> ArmChain:
-        """The chain of the URDF `path` up to the link `flange`; a missing file or link is one line."""
+    def from_model(cls, path: Path | str, flange: str) -> ArmChain:
+        """The chain of the URDF or MJCF `path` up to the link (MJCF: body) `flange`; a missing file or link
+        is one line."""
         path = Path(path)
         if not path.is_file():
             raise ValueError(f"{path}: arm model file not found")
-        links = pk.build_chain_from_urdf(path.read_bytes()).get_link_names()
-        if flange not in links:
-            raise ValueError(
-                f"{path}: flange link '{flange}' is not a link of the model ({', '.join(links)})"
-            )
-        chain = pk.build_serial_chain_from_urdf(path.read_bytes(), flange).to(dtype=torch.float64)
+        if path.suffix in (".xml", ".mjcf"):
+            chain = _mjcf_chain(path, flange)
+        else:
+            # pytorch-kinematics' URDF reader writes a line to stderr for each vendor attribute it does not
+            # know (the Panda's: 28 lines of joint dynamics); the chain is what is read here, not those.
+            with contextlib.redirect_stderr(io.StringIO()):
+                links = pk.build_chain_from_urdf(path.read_bytes()).get_link_names()
+                if flange not in links:
+                    raise ValueError(
+                        f"{path}: flange link '{flange}' is not a link of the model ({', '.join(links)})"
+                    )
+                chain = pk.build_serial_chain_from_urdf(path.read_bytes(), flange)
+        chain = chain.to(dtype=torch.float64)
         lower, upper = (torch.as_tensor(limit, dtype=torch.float64) for limit in chain.get_joint_limits())
         return cls(chain, lower, upper)
 
@@ -51,6 +63,43 @@ class ArmChain:
     def flange_pose(self, q: Tensor) -> Tensor:
         """(B, 4, 4) flange poses in the base frame of joints `q` (B, dof)."""
         return self.chain.forward_kinematics(q).get_matrix()
+
+
+MJCF_JOINTS = {mujoco.mjtJoint.mjJNT_HINGE: "revolute", mujoco.mjtJoint.mjJNT_SLIDE: "prismatic"}
+
+
+def _mjcf_chain(path: Path, flange: str) -> pk.SerialChain:
+    """The serial chain from the world to the body `flange` of an MJCF, as MuJoCo compiles it (meshes found
+    beside the file; pytorch-kinematics' own MJCF reader reads a string, so not those, and does not know
+    MuJoCo 3's joint type values)."""
+    model = mujoco.MjModel.from_xml_path(str(path))
+    bodies = [model.body(i).name for i in range(1, model.nbody)]
+    if flange not in bodies:
+        raise ValueError(f"{path}: flange body '{flange}' is not a body of the model ({', '.join(bodies)})")
+    route, body = [], model.body(flange).id
+    while body != 0:
+        route.append(body)
+        body = int(model.body_parentid[body])
+    parent = root = pk.frame.Frame("world", link=pk.frame.Link("world"), joint=pk.frame.Joint())
+    for body in map(model.body, reversed(route)):
+        if body.jntnum[0] > 1:
+            raise ValueError(
+                f"{path}: body '{body.name}' has {body.jntnum[0]} joints; an arm's bodies have one"
+            )
+        joint = pk.frame.Joint(f"{body.name}_fixed")
+        if body.jntnum[0] == 1:
+            mj = model.joint(body.jntadr[0])
+            kind = MJCF_JOINTS.get(mujoco.mjtJoint(int(mj.type[0])))
+            if kind is None:
+                raise ValueError(f"{path}: joint '{mj.name}' is neither a hinge nor a slide")
+            limits = (mj.range[0], mj.range[1]) if model.jnt_limited[mj.id] else (-math.inf, math.inf)
+            offset = pk.transforms.Transform3d(pos=mj.pos)
+            joint = pk.frame.Joint(mj.name, offset=offset, axis=mj.axis, joint_type=kind, limits=limits)
+        link = pk.frame.Link(body.name, offset=pk.transforms.Transform3d(rot=body.quat, pos=body.pos))
+        child = pk.frame.Frame(body.name, link=link, joint=joint)
+        parent.children = [child]
+        parent = child
+    return pk.SerialChain(pk.Chain(root), flange)
 
 
 def pose_error(current: Tensor, target: Tensor) -> Tensor:
