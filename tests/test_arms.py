@@ -37,7 +37,7 @@ def test_each_built_in_arms_fk_agrees_with_mujoco_and_its_hand_reaches_every_reg
     chain = spec.chain()
     position, rotation = fk_error_vs_mujoco(spec, chain, sample_joints(chain, 32))
     assert position < FK_TOLERANCE and rotation < FK_TOLERANCE, (position, rotation)
-    assert all(reach(spec, chain, load_hand("umi").to(dtype=torch.float64)).reached)
+    assert all(reach(spec, chain, load_hand("umi")).reached)
 
 
 def test_the_wrist_is_placed_through_base_and_mount_and_a_wrist_pose_gives_its_flange_target():

@@ -20,6 +20,7 @@ from lerobot_opfa.cli import main
 from lerobot_opfa.datasets.joint_map import JointMap, JointMapError
 from lerobot_opfa.envs.config import OpfaEnvConfig
 from lerobot_opfa.envs.control import EE_ACTION_NAMES, EE_STATE_NAMES, EndEffectorDeltas
+from lerobot_opfa.envs.scene import HOME
 from lerobot_opfa.flags import FlagError
 from lerobot_opfa.hands.registry import load_hand
 
@@ -30,7 +31,7 @@ JAW = "left_jaw_joint"  # umi's one actuated joint (metres)
 
 def ee_map(path: Path) -> Path:
     """umi's jaw from the -1 (open) .. 1 (closed) reading and from the 0 (open) .. 1 (closed) command."""
-    control = EndEffectorDeltas(load_hand("umi"))
+    control = EndEffectorDeltas(load_hand("umi"), HOME)
     travel, middle = control.closed - control.open, (control.closed + control.open) / 2
     path.write_text(
         "hand: umi\n"
@@ -56,7 +57,7 @@ def test_state_and_action_joints_apart_split_and_join_each_in_its_units(tmp_path
     joint_map = JointMap.load(ee_map(tmp_path / "map.yaml")).bind(list(EE_STATE_NAMES), list(EE_ACTION_NAMES))
     assert joint_map.body_names(OBS_STATE) == list(EE_STATE_NAMES[:-1])  # wrist joints and velocities
     assert joint_map.body_names(ACTION) == ["dx", "dy", "dz", "dyaw"]
-    control = EndEffectorDeltas(load_hand("umi"))
+    control = EndEffectorDeltas(load_hand("umi"), HOME)
     state = torch.tensor([[0.0] * 12 + [-1.0], [0.0] * 12 + [1.0]], dtype=torch.float64)
     _, (jaw,) = joint_map.split(state, OBS_STATE)
     assert torch.allclose(jaw[:, 0], torch.tensor([control.open, control.closed], dtype=torch.float64))
@@ -115,7 +116,7 @@ def test_a_command_read_the_wrong_way_round_is_refused_naming_the_joint(ee_demos
     """The grasp command's scale with its sign flipped (and the offset that keeps it within the jaw's
     limits): every value is a jaw opening the hand can reach, the jaw commanded shut where the demos opened
     it."""
-    control = EndEffectorDeltas(load_hand("umi"))
+    control = EndEffectorDeltas(load_hand("umi"), HOME)
     travel, middle = control.closed - control.open, (control.closed + control.open) / 2
     reversed_map = tmp_path / "reversed.yaml"
     reversed_map.write_text(

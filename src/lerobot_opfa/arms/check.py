@@ -70,7 +70,7 @@ def tool_in_wrist(hand: HandModel) -> torch.Tensor:
     """(4, 4): the hand's tool frame (grasp centre, approach axis +z) in its wrist (base) frame."""
     rotation, translation = tool_frame(hand).hand_in_tool()
     hand_in_tool = torch.eye(4, dtype=torch.float64)
-    hand_in_tool[:3, :3], hand_in_tool[:3, 3] = torch.from_numpy(rotation), torch.from_numpy(translation)
+    hand_in_tool[:3, :3], hand_in_tool[:3, 3] = torch.as_tensor(rotation), torch.as_tensor(translation)
     return torch.linalg.inv(hand_in_tool)
 
 

@@ -47,7 +47,7 @@ def _check(args: argparse.Namespace) -> int:
 
     spec = load_arm(args.arm)
     chain = spec.chain()
-    hand = load_hand(args.hand).to(dtype=chain.lower.dtype)
+    hand = load_hand(args.hand)
     position, rotation = fk_error_vs_mujoco(spec, chain, sample_joints(chain, args.samples))
     print(f"{spec.name}: {len(spec.joints)} joints, flange {spec.flange}, model {spec.model_path}")
     print(
