@@ -11,7 +11,6 @@ same form) and `home` (joint values). The built-in arms are `arm_models/<name>.y
 
 from __future__ import annotations
 
-import difflib
 import math
 import sysconfig
 from dataclasses import dataclass
@@ -20,7 +19,7 @@ from pathlib import Path
 import torch
 
 from lerobot_opfa.arms.ik import ArmChain
-from lerobot_opfa.resources import resource_dir
+from lerobot_opfa.resources import builtin_or_path, resource_dir
 from lerobot_opfa.yaml_files import read_yaml
 
 FIELDS = ("name", "description", "model", "flange", "joints", "base", "mount", "home")
@@ -172,20 +171,6 @@ def _frame(path: Path, name: str, raw) -> torch.Tensor:
     return transform(values["xyz"], values["rpy"])
 
 
-def resolve_arm(arm: str | Path) -> Path:
-    """A built-in name or a path to an arm spec YAML."""
-    builtins = builtin_arms()
-    if str(arm) in builtins:
-        return builtins[str(arm)]
-    path = Path(arm)
-    if path.is_file():
-        return path
-    if path.suffix in (".yaml", ".yml") or len(path.parts) > 1:
-        raise ValueError(f"arm spec {path} not found (the built-in arms: {', '.join(builtins)})")
-    closest = difflib.get_close_matches(str(arm), builtins, n=1)
-    hint = f" (did you mean '{closest[0]}'?)" if closest else ""
-    raise ValueError(f"unknown arm '{arm}'{hint}: not a built-in ({', '.join(builtins)}) and not a spec path")
-
-
 def load_arm(arm: str | Path) -> ArmSpec:
-    return ArmSpec.load(resolve_arm(arm))
+    """A built-in arm by name, or an arm spec YAML by path."""
+    return ArmSpec.load(builtin_or_path("arm", arm, builtin_arms()))

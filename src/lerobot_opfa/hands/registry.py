@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import difflib
 from functools import cache
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from lerobot_opfa.hands.spec import HandSpec, HandSpecError
-from lerobot_opfa.resources import resource_dir
+from lerobot_opfa.resources import builtin_or_path, resource_dir
 
 if TYPE_CHECKING:
     from lerobot_opfa.hands.model import HandModel
@@ -25,21 +24,7 @@ def builtin_hands() -> dict[str, Path]:
 
 def resolve_spec_path(hand: str | Path) -> Path:
     """A built-in name or a path to a `spec.yaml` (or a folder holding one)."""
-    builtins = builtin_hands()
-    if str(hand) in builtins:
-        return builtins[str(hand)]
-    path = Path(hand)
-    if path.is_dir():
-        path = path / "spec.yaml"
-    if path.is_file():
-        return path
-    if path.suffix in (".yaml", ".yml") or len(path.parts) > 1:
-        raise ValueError(f"hand spec {path} not found (the built-in hands: {', '.join(builtins)})")
-    closest = difflib.get_close_matches(str(hand), builtins, n=1)
-    hint = f" (did you mean '{closest[0]}'?)" if closest else ""
-    raise ValueError(
-        f"unknown hand '{hand}'{hint}: not a built-in ({', '.join(builtins)}) and not a spec.yaml path"
-    )
+    return builtin_or_path("hand", hand, builtin_hands(), "spec.yaml")
 
 
 def hand_ref(spec: HandSpec) -> str:
