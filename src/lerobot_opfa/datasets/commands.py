@@ -27,6 +27,12 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         "(docs/usage.md); each input takes the map whose entries it has, or the one bound to it as INPUT=MAP "
         "(robots whose entries are named alike)",
     )
+    merge.add_argument(
+        "--fps",
+        type=int,
+        help="the merged dataset's rate (default: the lowest input's); inputs at another rate are resampled "
+        "by timestamp",
+    )
     merge.add_argument("--repo-id", default="local/opfa_merged")
     merge.add_argument("--overwrite", action="store_true")
     merge.set_defaults(func=_merge)
@@ -54,7 +60,9 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
 def _merge(args: argparse.Namespace) -> None:
     from lerobot_opfa.datasets.merge import merge_datasets
 
-    out = merge_datasets(args.inputs, args.output, args.galr, args.repo_id, args.overwrite, args.joint_maps)
+    out = merge_datasets(
+        args.inputs, args.output, args.galr, args.repo_id, args.overwrite, args.joint_maps, args.fps
+    )
     print(f"wrote {_summary(out)}" + (f"; latents cached with GaLR {args.galr}" if args.galr else ""))
 
 

@@ -5,7 +5,8 @@ then per hand slot the universal joints (zero where a hand has none) and, when a
 of that hand, computed once here so that training in GaLR space costs what a raw-joint step costs
 (`layout.merged_names`). `observation.embodiment` holds each slot's hand index (its feature names list the
 hands). Robots co-train when they share their body entries and their number of hands, whatever hands they
-hold. Point clouds stay flattened (N*3,) so LeRobot's own dataset tools keep working.
+hold, at whatever rates they were recorded: inputs at another rate than the merge's are resampled by
+timestamp (`resample`). Point clouds stay flattened (N*3,) so LeRobot's own dataset tools keep working.
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ from lerobot_opfa.datasets.layout import (
     opfa_record,
     read_layout,
 )
+from lerobot_opfa.datasets.resample import resampling
 from lerobot_opfa.datasets.statistics import column_statistics, noise_floor, raw_noise, write_statistics
 from lerobot_opfa.features import OBS_EMBODIMENT, OBS_POINTCLOUD, column_embodiments
 from lerobot_opfa.galr import checkpoints
@@ -167,10 +169,12 @@ def merge_datasets(
     repo_id: str = "local/opfa_merged",
     overwrite: bool = False,
     joint_maps: list[Path | str] = (),
+    fps: int | None = None,
 ) -> Path:
     """Writes the merged dataset to `output` atomically and returns its path. `joint_maps`: map files for
     inputs whose entries are not named after their hand's joints; each input takes the one whose entries
-    it has, or the one bound to it as `INPUT=MAP`."""
+    it has, or the one bound to it as `INPUT=MAP`. `fps`: the merge's rate (default: the lowest of the
+    inputs')."""
     galr = None
     hands = None
     if galr_path is not None:
@@ -191,12 +195,14 @@ def merge_datasets(
             )
         )
     wrist, sides = opened[0].layout.wrist_names, _sides(opened[0])
-    fps = opened[0].meta.fps
+    if fps is not None and fps < 1:
+        raise ValueError(f"--fps: a positive rate, not {fps}")
+    fps = fps or min(i.meta.fps for i in opened)
     for i in opened:
-        if i.layout.wrist_names != wrist or i.meta.fps != fps:
+        if i.layout.wrist_names != wrist:
             raise ValueError(
-                f"inputs disagree: {i.root} has body entries {i.layout.wrist_names} at {i.meta.fps} fps, "
-                f"{opened[0].root} has {wrist} at {fps} fps"
+                f"inputs disagree: {i.root} has body entries {i.layout.wrist_names}, {opened[0].root} has "
+                f"{wrist}"
             )
         if _sides(i) != sides:
             raise ValueError(
@@ -234,7 +240,7 @@ def merge_datasets(
         partial = merged.root
         with tqdm(total=total, desc="merging", unit="frame") as progress:
             for source in opened:
-                _append(merged, source, embodiments, galr, list(extra), list(cameras), progress)
+                _append(merged, source, embodiments, galr, list(extra), list(cameras), progress, fps)
         merged.finalize()
         write_statistics(partial, _statistics(partial, embodiments, galr, len(wrist), len(sides)))
         refs = {h: r for i in opened for h, r in zip(i.layout.embodiments, i.layout.hand_refs, strict=True)}
@@ -244,6 +250,7 @@ def merge_datasets(
             "embodiments": embodiments,
             **({"robots": [list(r) for r in robots]} if len(sides) > 1 else {}),
             "inputs": [str(i.root) for i in opened],
+            "input_fps": [i.meta.fps for i in opened],
             "latent_dim": latent_dim,
             "hands": user_hands,
             "joint_maps": _deployed_maps(opened),
@@ -421,8 +428,9 @@ def _camera_frame(image: torch.Tensor, feature: dict) -> np.ndarray:
 
 
 def _append(
-    merged, source: _Input, embodiments, galr, extra: list[str], cameras: list[str], progress
+    merged, source: _Input, embodiments, galr, extra: list[str], cameras: list[str], progress, fps: int
 ) -> None:
+    """Writes the input's episodes into the merged dataset, at its rate `fps`."""
     hands, joint_map = _hands(source, galr), source.layout.joint_maps[0]
     columns = read_columns(source.root, [OBS_STATE, ACTION, *extra, *BOOKKEEPING])
     tasks = {int(row.task_index): task for task, row in source.meta.tasks.iterrows()}
@@ -444,11 +452,15 @@ def _append(
     for episode in dict.fromkeys(episodes.tolist()):
         rows = np.flatnonzero(episodes == episode)
         rows = rows[np.argsort(columns["frame_index"][rows])]
-        state, action = (
-            to_layout(columns[OBS_STATE][rows], OBS_STATE),
-            to_layout(columns[ACTION][rows], ACTION),
-        )
-        for j, row in enumerate(rows):
+        entries = {key: columns[key][rows] for key in (OBS_STATE, ACTION)}
+        picks = rows  # the recorded frame each written frame takes its other features from
+        if source.meta.fps != fps:
+            where = f"{source.root}, episode {episode}"
+            timing = resampling(columns["timestamp"][rows], source.meta.fps, fps, where)
+            entries = {key: timing.interpolate(values) for key, values in entries.items()}
+            picks = rows[timing.nearest]
+        state, action = to_layout(entries[OBS_STATE], OBS_STATE), to_layout(entries[ACTION], ACTION)
+        for j, row in enumerate(picks):
             frame = {OBS_STATE: state[j], ACTION: action[j], OBS_EMBODIMENT: embodiment}
             for key in extra:
                 dtype = merged.meta.features[key]["dtype"]
