@@ -121,3 +121,32 @@ def test_the_resampling_of_a_recorded_rate_is_the_identity():
     timing = resampling(times.astype(np.float32), 25, 25, "episode 0")
     assert (timing.nearest == np.arange(25)).all()
     assert np.array_equal(timing.interpolate(np.arange(25.0)), np.arange(25.0))
+
+
+@pytest.mark.parametrize("space", ["per_embodiment", "galr"])
+def test_robots_recorded_at_30_and_10_fps_co_train_and_each_gets_its_own_entries_back(tmp_path, space):
+    """A umi robot at 30 fps and an Inspire robot at 10 fps merge at 10 fps, train one policy, and each
+    robot's action comes back in its own entries."""
+    import torch
+    from test_policy import batch_of, make_policy, rollout, save_galr
+
+    from lerobot_opfa.datasets.synthetic import write_synthetic_dataset
+    from lerobot_opfa.hands.registry import load_hand
+
+    save_galr(tmp_path / "galr", ["umi", "inspire"])
+    write_synthetic_dataset(tmp_path / "umi", "umi", episodes=2, frames=36, n_points=32, fps=30, seed=0)
+    write_synthetic_dataset(
+        tmp_path / "inspire", "inspire", episodes=2, frames=12, n_points=32, fps=10, seed=1
+    )
+    merge = ["dataset", "merge", "--inputs", str(tmp_path / "umi"), str(tmp_path / "inspire"), "--output",
+             str(tmp_path / "merged"), "--galr", str(tmp_path / "galr")]  # fmt: skip
+    assert cli.main(merge) == 0
+    policy, pre, post, dataset = make_policy(tmp_path, "merged", action_space=space)
+    assert dataset.meta.fps == 10 and dataset.meta.total_frames == 2 * 12 + 2 * 12
+    loss, _ = policy.forward(pre(batch_of(dataset, [0, 13, 24, 40])))
+    loss.backward()
+    assert loss.isfinite()
+    cloud = torch.randn(32 * 3) * 0.05
+    for hand in ("umi", "inspire"):
+        action = rollout(policy, pre, post, hand, cloud, steps=1)
+        assert action.shape == (1, 6 + load_hand(hand).dof) and action.isfinite().all()
