@@ -33,6 +33,15 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         help="the merged dataset's rate (default: the lowest input's); inputs at another rate are resampled "
         "by timestamp",
     )
+    merge.add_argument(
+        "--camera-map",
+        nargs="+",
+        default=[],
+        metavar="ROLE=KEY",
+        help="which camera of each input is which: front=observation.images.cam_high "
+        "front=observation.images.top merges both as observation.images.front (colour resized to the first's "
+        "size; an input with none gets camera_missing.front)",
+    )
     merge.add_argument("--repo-id", default="local/opfa_merged")
     merge.add_argument("--overwrite", action="store_true")
     merge.set_defaults(func=_merge)
@@ -61,8 +70,9 @@ def _merge(args: argparse.Namespace) -> None:
     from lerobot_opfa.datasets.merge import merge_datasets
 
     out = merge_datasets(
-        args.inputs, args.output, args.galr, args.repo_id, args.overwrite, args.joint_maps, args.fps
-    )
+        args.inputs, args.output, args.galr, args.repo_id, args.overwrite, args.joint_maps, args.fps,
+        args.camera_map,
+    )  # fmt: skip
     print(f"wrote {_summary(out)}" + (f"; latents cached with GaLR {args.galr}" if args.galr else ""))
 
 

@@ -25,6 +25,14 @@ from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from lerobot.utils.constants import ACTION, OBS_STATE
 from tqdm import tqdm
 
+from lerobot_opfa.datasets.cameras import (
+    CAMERA_DTYPES,
+    Camera,
+    camera_features,
+    camera_frame,
+    parse_camera_map,
+    plan_cameras,
+)
 from lerobot_opfa.datasets.io import check_dataset_folder, check_outside_inputs, new_dataset, read_columns
 from lerobot_opfa.datasets.joint_map import HANDS_SEPARATOR, JointMap
 from lerobot_opfa.datasets.layout import (
@@ -170,11 +178,12 @@ def merge_datasets(
     overwrite: bool = False,
     joint_maps: list[Path | str] = (),
     fps: int | None = None,
+    camera_map: list[str] = (),
 ) -> Path:
     """Writes the merged dataset to `output` atomically and returns its path. `joint_maps`: map files for
     inputs whose entries are not named after their hand's joints; each input takes the one whose entries
     it has, or the one bound to it as `INPUT=MAP`. `fps`: the merge's rate (default: the lowest of the
-    inputs')."""
+    inputs'). `camera_map`: `ROLE=KEY` items naming which camera of each input is which (`cameras`)."""
     galr = None
     hands = None
     if galr_path is not None:
@@ -219,9 +228,11 @@ def merge_datasets(
             )
     latent_dim = galr.config.latent_dim if galr is not None else 0
     names = merged_names(wrist, sides, latent_dim)
-    extra, cameras = _passthrough(opened), _cameras(opened)
-    _check_visual(opened, [*extra, *cameras])
-    kept = {OBS_STATE, ACTION, *BOOKKEEPING, *extra, *cameras}
+    extra = _passthrough(opened)
+    cameras = plan_cameras({i.root: i.meta.features for i in opened}, parse_camera_map(list(camera_map)))
+    sources = {key for camera in cameras for key in camera.sources.values() if key is not None}
+    _check_visual(opened, [*extra, *sources])
+    kept = {OBS_STATE, ACTION, *BOOKKEEPING, *extra, *sources}
     dropped = sorted({k for i in opened for k in i.meta.features} - kept)
     if dropped:
         logger.warning("features not shared by all inputs are left out: %s", dropped)
@@ -230,7 +241,7 @@ def merge_datasets(
         ACTION: {"dtype": "float32", "shape": (len(names),), "names": names},
         OBS_EMBODIMENT: {"dtype": "int64", "shape": (len(sides),), "names": embodiments},
         **extra,
-        **cameras,
+        **camera_features(cameras),
     }
     for source in opened:
         _check_limits(source, galr)
@@ -240,7 +251,7 @@ def merge_datasets(
         partial = merged.root
         with tqdm(total=total, desc="merging", unit="frame") as progress:
             for source in opened:
-                _append(merged, source, embodiments, galr, list(extra), list(cameras), progress, fps)
+                _append(merged, source, embodiments, galr, list(extra), cameras, progress, fps)
         merged.finalize()
         write_statistics(partial, _statistics(partial, embodiments, galr, len(wrist), len(sides)))
         refs = {h: r for i in opened for h, r in zip(i.layout.embodiments, i.layout.hand_refs, strict=True)}
@@ -251,15 +262,20 @@ def merge_datasets(
             **({"robots": [list(r) for r in robots]} if len(sides) > 1 else {}),
             "inputs": [str(i.root) for i in opened],
             "input_fps": [i.meta.fps for i in opened],
+            "camera_sources": {
+                camera.key: {str(root): key for root, key in camera.sources.items()}
+                for camera in cameras
+                if set(camera.sources.values()) != {camera.key}
+            },
             "latent_dim": latent_dim,
             "hands": user_hands,
             "joint_maps": _deployed_maps(opened),
         }
         if galr is not None:
             meta |= {"galr": checkpoints.record(galr_path), "galr_fingerprint": galr_fingerprint(galr)}
-        cameras = _clouds_calibration(opened)
-        if cameras is not None:
-            meta["cameras"] = cameras
+        calibration = _clouds_calibration(opened)
+        if calibration is not None:
+            meta["cameras"] = calibration
         (partial / OPFA_META_FILE).write_text(json.dumps(meta, indent=2))
     logger.info("merged %d frames of %s into %s", total, embodiments, output)
     return Path(output)
@@ -359,32 +375,6 @@ def _check_limits(source: _Input, galr) -> None:
     joint_map.check_senses(torch.tensor(columns[OBS_STATE]), torch.tensor(columns[ACTION]), episodes)
 
 
-CAMERA_DTYPES = ("image", "video")
-
-
-def _cameras(inputs: list[_Input]) -> dict[str, dict]:
-    """Camera features (RGB and depth maps) every input has, written as images; inputs that disagree on a
-    camera's shape or kind are an error naming them."""
-    first, cameras = inputs[0].meta.features, {}
-    for key, feature in first.items():
-        if feature["dtype"] not in CAMERA_DTYPES or not all(key in i.meta.features for i in inputs):
-            continue
-        kinds = {
-            i.root: (tuple(i.meta.features[key]["shape"]), _is_depth(i.meta.features[key])) for i in inputs
-        }
-        if len(set(kinds.values())) > 1:
-            found = ", ".join(
-                f"{root}: {shape}{' depth' if depth else ''}" for root, (shape, depth) in kinds.items()
-            )
-            raise ValueError(
-                f"the inputs disagree on camera '{key}' ({found}); record them alike to merge them"
-            )
-        depth = _is_depth(feature)
-        cameras[key] = {"dtype": "image", "shape": tuple(feature["shape"]), "names": feature["names"],
-                        "info": {"is_depth_map": depth}}  # fmt: skip
-    return cameras
-
-
 def _check_visual(inputs: list[_Input], kept: list[str]) -> None:
     """Inputs with cameras or clouds that share none would make a merge with nothing to see: refused."""
     seen = {
@@ -414,28 +404,16 @@ def _clouds_calibration(inputs: list[_Input]) -> dict | None:
     return None
 
 
-def _is_depth(feature: dict) -> bool:
-    return bool((feature.get("info") or {}).get("is_depth_map"))
-
-
-def _camera_frame(image: torch.Tensor, feature: dict) -> np.ndarray:
-    """A frame as LeRobot serves it ((C, H, W): RGB in [0, 1], depth in mm) -> as a robot records it
-    ((H, W, C): uint8 RGB, uint16 mm depth)."""
-    hwc = image.permute(1, 2, 0).numpy()
-    if _is_depth(feature):
-        return np.round(hwc).clip(0, 65535).astype(np.uint16)
-    return np.round(hwc * 255).clip(0, 255).astype(np.uint8)
-
-
 def _append(
-    merged, source: _Input, embodiments, galr, extra: list[str], cameras: list[str], progress, fps: int
+    merged, source: _Input, embodiments, galr, extra: list[str], cameras: list[Camera], progress, fps: int
 ) -> None:
     """Writes the input's episodes into the merged dataset, at its rate `fps`."""
     hands, joint_map = _hands(source, galr), source.layout.joint_maps[0]
     columns = read_columns(source.root, [OBS_STATE, ACTION, *extra, *BOOKKEEPING])
     tasks = {int(row.task_index): task for task, row in source.meta.tasks.iterrows()}
     embodiment = np.array([embodiments.index(hand.name) for hand in hands], np.int64)
-    if cameras:  # decoded frame by frame, as LeRobot serves them
+    decode = any(camera.sources[source.root] is not None for camera in cameras)
+    if decode:  # decoded frame by frame, as LeRobot serves them
         frames = LeRobotDataset(f"local/{source.root.name}", root=source.root)
         position = {int(index): i for i, index in enumerate(frames.hf_dataset["index"])}
 
@@ -467,9 +445,8 @@ def _append(
                 frame[key] = np.asarray(columns[key][row], dtype=dtype).reshape(
                     merged.meta.features[key]["shape"]
                 )
-            if cameras:
-                item = frames[position[int(columns["index"][row])]]
-                frame |= {key: _camera_frame(item[key], merged.meta.features[key]) for key in cameras}
+            item = frames[position[int(columns["index"][row])]] if decode else None
+            frame |= camera_frame(cameras, source.root, item)
             frame["task"] = tasks[int(columns["task_index"][row])]
             merged.add_frame(frame)
         merged.save_episode()
