@@ -253,8 +253,8 @@ def test_demo_progress_bar_counts_what_it_says(tmp_path, monkeypatch):
             self.root = root
 
         def evaluate(self, evaluation):
-            return {"condition": "opfa", "hand": evaluation.hand, "task": evaluation.task,
-                    "regions": list(evaluation.regions), "training": "t",
+            return {"condition": evaluation.training.condition, "hand": evaluation.hand,
+                    "task": evaluation.task, "regions": list(evaluation.regions), "training": "t",
                     "successes": [True, False]}  # fmt: skip
 
     monkeypatch.setattr(demo, "tqdm", Bar)
@@ -263,8 +263,9 @@ def test_demo_progress_bar_counts_what_it_says(tmp_path, monkeypatch):
                               galr="long", output_dir=tmp_path)  # fmt: skip
     demo.policy_table(args)
     (bar,) = bars
-    assert bar.total == bar.n == 3 and "evaluated" in bar.desc
-    assert json.loads((tmp_path / "success.json").read_text())["xhand"] == {"successes": 1, "episodes": 2}
+    assert bar.total == bar.n == 6 and "evaluated" in bar.desc, "three hands, OPFA and its control"
+    success = json.loads((tmp_path / "success.json").read_text())
+    assert success["opfa"]["xhand"] == success["untrained"]["xhand"] == {"successes": 1, "episodes": 2}
 
 
 def test_hands_list_shows_each_hands_joints_with_units_and_limits(capsys):

@@ -55,7 +55,7 @@ def test_protocol_cells():
     cells = protocols.spatial(
         small, ("lift", "press_button"), ("inspire", "xhand"), ("umi", "inspire", "leap")
     )
-    assert len(_transfer(cells)) == 2 * 2 * 3 + 3 * 3
+    assert len(_transfer(cells)) == 2 * 2 * 4 + 3 * 4  # three conditions and the control
     for cell in _transfer(cells):  # every embodiment is tested where only the others' demos are
         own = next(d for d in cell.evaluation.training.demos if d.hand == cell.evaluation.hand).regions
         assert not set(own) & set(cell.evaluation.regions)
@@ -79,7 +79,7 @@ def test_protocol_cells():
         if c.condition == "opfa"
         for d in c.evaluation.training.demos[1:]
     )
-    assert len(_transfer(protocols.nine("lift"))) == 9 * 3
+    assert len(_transfer(protocols.nine("lift"))) == 9 * 4
     with pytest.raises(ValueError, match="unknown condition"):
         protocols.nine("lift", conditions=("oracle",))
 
@@ -121,12 +121,33 @@ def test_in_distribution_is_where_the_demos_are():
     assert inside[("12", "inspire")] == inside[("1", "xhand")] == tuple(REGIONS)
 
 
+def test_the_control_is_opfas_policy_as_initialised_on_the_same_demos_and_is_never_flagged():
+    """`untrained`: OPFA's training on the same demos, one step at learning rate 0 (weights as initialised,
+    normalisation the dataset's); its low rate where its demos are is what a control shows, not a flag."""
+    small = get_scale("small")
+    control = small.train_args(5000, untrained=True)
+    assert "--steps=1" in control and "--policy.optimizer_lr=0" in control
+    assert "--policy.optimizer_lr=0" not in small.train_args(5000)
+    cells = protocols.spatial(small, ("lift",), ("inspire", "xhand"), conditions=("opfa", "untrained"))
+    trainings = {c.condition: c.evaluation.training for c in cells}
+    assert trainings["untrained"].demos == trainings["opfa"].demos
+
+    def row(condition, kind, wins):
+        return {"group": "lift", "hand": "inspire", "condition": condition, "training": condition,
+                "kind": kind, "successes": [True] * wins + [False] * (10 - wins)}  # fmt: skip
+
+    rows = summarize([row(c, k, 1) for c in ("opfa", "untrained") for k in ("in_distribution", "transfer")])
+    table = markdown_table([r for r in rows if r["kind"] == "transfer"])
+    assert "| control: OPFA untrained | 10 [2, 40] |" in table and "| OPFA | 10 [2, 40] †" in table
+
+
 def test_object_protocol_tests_each_hand_on_the_other_object():
     cells = _transfer(protocols.objects(get_scale("small"), ("lift", "lift_box"), ("inspire", "xhand")))
     for cell in cells:
         (own,) = [d for d in cell.evaluation.training.demos if d.hand == cell.evaluation.hand]
         assert cell.evaluation.task != own.task and cell.evaluation.regions == own.regions
-    assert {c.condition for c in cells} == {"wo_cotrain", "naive_cotrain", "opfa"} and len(cells) == 6
+    assert {c.condition for c in cells} == {"wo_cotrain", "naive_cotrain", "opfa", "untrained"}
+    assert len(cells) == 8
     with pytest.raises(ValueError, match="one distinct task"):
         protocols.objects(get_scale("small"), ("lift", "lift"), ("inspire", "xhand"))
 

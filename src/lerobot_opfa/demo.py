@@ -5,7 +5,8 @@
 2. Policy: scripted demos of three embodiments (a gripper and two dexterous hands) on one task in one region
    of the table, merged into one dataset, one OPFA policy trained on all of them with `lerobot-opfa train`
    (LeRobot's training on the dataset held in memory), and every embodiment evaluated with `lerobot-eval`
-   where its demos are; a success table, `success.json` and a plot at the end.
+   where its demos are, beside the control (the same policy untrained); a success table, `success.json`
+   and a plot at the end.
 """
 
 from __future__ import annotations
@@ -93,20 +94,28 @@ def policy_table(args: argparse.Namespace) -> None:
     region = tuple(parse_regions(args.region))
     demos = [Demos(args.task, h, region, DEMO_SCALE.demos) for h in hands]
     tests = [(args.task, region)] * len(hands)  # where the demos are: transfer and ceiling cells coincide
-    cells = [c for c in co_training(args.task, demos, tests, ("opfa",), seed=0) if c.kind == TRANSFER]
+    conditions = ("opfa", "untrained")  # beside OPFA, the control: the same policy untrained
+    cells = [c for c in co_training(args.task, demos, tests, conditions, seed=0) if c.kind == TRANSFER]
     workspace = Workspace(args.output_dir / "pipeline", DEMO_SCALE, args.galr)
     rows = []
-    with tqdm(total=len(cells), desc="hands evaluated (demos, merge and training come first)") as bar:
+    progress = "cells evaluated (hand x policy; demos, merge and training come first)"
+    with tqdm(total=len(cells), desc=progress) as bar:
         for cell in cells:
             rows.append({"group": cell.group, **workspace.evaluate(cell.evaluation)})
             bar.update()
     rows = summarize(rows)
-    success = {r["hand"]: {"successes": sum(r["successes"]), "episodes": r["episodes"]} for r in rows}
+    success = {}
+    for r in rows:
+        success.setdefault(r["condition"], {})[r["hand"]] = {
+            "successes": sum(r["successes"]),
+            "episodes": r["episodes"],
+        }
     (args.output_dir / "success.json").write_text(json.dumps(success, indent=2))
     png = plot(rows, args.output_dir / "success.png", f"OPFA co-trained on {', '.join(hands)}")
     print(
         f"One OPFA policy, co-trained on {DEMO_SCALE.demos} scripted demos of each hand in {args.region} "
-        f"({DEMO_SCALE.epochs:g} epochs); {DEMO_SCALE.eval_episodes} evaluation episodes per hand there:\n"
+        f"({DEMO_SCALE.epochs:g} epochs); {DEMO_SCALE.eval_episodes} evaluation episodes per hand there, "
+        "beside the control, the same policy untrained (what the task gives a policy that learnt nothing):\n"
     )
     print(markdown_table(rows))
     print(f"plot: {png}; videos: {workspace.root / 'videos'}; policy: {workspace.root / 'train'}")

@@ -21,9 +21,18 @@ from lerobot_opfa.envs.regions import REGIONS
 from lerobot_opfa.experiments.scales import Scale
 from lerobot_opfa.galr import checkpoints
 
-CONDITIONS = {"wo_cotrain": "raw", "naive_cotrain": "per_embodiment", "opfa": "galr"}
-"""The paper's three conditions -> the policy's `action_space`."""
-CONDITION_LABELS = {"wo_cotrain": "w/o co-training", "naive_cotrain": "naive co-training", "opfa": "OPFA"}
+CONDITIONS = {"wo_cotrain": "raw", "naive_cotrain": "per_embodiment", "opfa": "galr", "untrained": "galr"}
+"""The paper's three conditions and the control -> the policy's `action_space`. The control, `untrained`,
+is OPFA's policy on the same demos as initialised (one step at learning rate 0: its weights untouched, its
+normalisation the dataset's): what a task gives a policy that has learnt nothing, which flailing within the
+demos' range can score on."""
+CONTROLS = ("untrained",)
+CONDITION_LABELS = {
+    "wo_cotrain": "w/o co-training",
+    "naive_cotrain": "naive co-training",
+    "opfa": "OPFA",
+    "untrained": "control: OPFA untrained",
+}
 EVAL_SEED = 100_000
 """Evaluation episodes are seeded from here, far from the demonstrations' seeds (0 and up)."""
 
@@ -170,7 +179,7 @@ class Workspace:
                 f"--seed={training.seed}",
                 "--policy.push_to_hub=false",
                 "--wandb.enable=false",
-                *self.scale.train_args(_frames(dataset)),
+                *self.scale.train_args(_frames(dataset), untrained=training.condition in CONTROLS),
             ]
             log = self.root / "logs" / f"train-{training.name}.log"
             # Its own loader and thread settings: the fastest measured (benchmarks/bench_training.py).

@@ -12,7 +12,7 @@ import json
 import math
 from pathlib import Path
 
-from lerobot_opfa.experiments.jobs import CONDITION_LABELS
+from lerobot_opfa.experiments.jobs import CONDITION_LABELS, CONTROLS
 from lerobot_opfa.experiments.protocols import IN_DISTRIBUTION, TRANSFER
 
 Z95 = 1.959964
@@ -68,7 +68,8 @@ def markdown_table(rows: list[dict]) -> str:
                 ]
                 successes = [s for r in mine for s in r["successes"]]
                 text = _rate_text(sum(successes), len(successes)) if successes else ""
-                cells.append(f"{text} {FLAG}" if any(r.get("ceiling_ok") is False for r in mine) else text)
+                failing = condition not in CONTROLS and any(r.get("ceiling_ok") is False for r in mine)
+                cells.append(f"{text} {FLAG}" if failing else text)
             lines.append(f"| {CONDITION_LABELS[condition]} | {' | '.join(cells)} |")
     return "\n".join(lines) + "\n"
 

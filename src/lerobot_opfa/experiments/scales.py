@@ -42,9 +42,12 @@ class Scale:
         steps = max(self.min_steps, math.ceil(self.epochs * frames / self.batch_size))
         return steps if self.max_steps is None else min(self.max_steps, steps)
 
-    def train_args(self, frames: int) -> list[str]:
-        steps = self.steps(frames)
+    def train_args(self, frames: int, untrained: bool = False) -> list[str]:
+        """The training flags for a dataset of `frames` frames; `untrained`: one step at learning rate 0,
+        the policy as initialised with the dataset's normalisation (the control)."""
+        steps = 1 if untrained else self.steps(frames)
         return [
+            *(["--policy.optimizer_lr=0"] if untrained else []),
             f"--steps={steps}",
             f"--batch_size={self.batch_size}",
             f"--policy.scheduler_warmup_steps={min(500, steps // 10)}",
