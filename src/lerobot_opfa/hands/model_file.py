@@ -74,6 +74,7 @@ def _urdf_subtree(path: Path, root: str) -> bytes:
     or joint left out (transmissions, simulator extensions) goes with them."""
     tree = ET.parse(path).getroot()
     links = {link.get("name") for link in tree.findall("link")}
+    joints = {joint.get("name") for joint in tree.findall("joint")}
     if root not in links:
         raise ModelFileError(f"{path}: no link '{root}' (the spec's `root`); its links are {sorted(links)}")
     children: dict[str, list[ET.Element]] = {}
@@ -95,7 +96,11 @@ def _urdf_subtree(path: Path, root: str) -> bytes:
             tree.remove(element)
     for joint in tree.findall("joint"):
         mimic = joint.find("mimic")
-        if mimic is not None and mimic.get("joint") not in kept_joints:
+        if mimic is not None and mimic.get("joint") not in joints:
+            # A mimic of a joint the file does not have (Alex's Psyonic hands mimic `index_q1` for
+            # `Right_index_q1`) says nothing: the spec's `couplings` say how the joint moves.
+            joint.remove(mimic)
+        elif mimic is not None and mimic.get("joint") not in kept_joints:
             raise ModelFileError(
                 f"{path}: joint '{joint.get('name')}' below '{root}' mimics '{mimic.get('joint')}', which is "
                 "not below it; take a root above both"
