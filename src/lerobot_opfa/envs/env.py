@@ -76,8 +76,9 @@ def arm_entry(side: str | None, name: str) -> str:
     return name if side is None else sided(side, name)
 
 
-def numpy(x) -> np.ndarray:
-    return x.double().cpu().numpy()
+def as_array(values) -> np.ndarray:
+    """A hand model's tensor as the simulator's float64 array."""
+    return values.double().cpu().numpy()
 
 
 @dataclass
@@ -162,10 +163,10 @@ class OpfaSimEnv(gym.Env):
         self.data = mujoco.MjData(self.model)
         self.n_substeps = max(1, round(1.0 / (fps * self.model.opt.timestep)))
         self.ctrl_index = np.concatenate([arm.ctrl for arm in self.scene.arms.values()])
-        self.hand_open = {side: numpy(hand.pose("open")) for side, hand in self.hand_models.items()}
+        self.hand_open = {side: as_array(hand.pose("open")) for side, hand in self.hand_models.items()}
 
-        low = np.concatenate([[*WRIST_RANGE[:, 0], *numpy(h.lower)] for h in self.hand_models.values()])
-        high = np.concatenate([[*WRIST_RANGE[:, 1], *numpy(h.upper)] for h in self.hand_models.values()])
+        low = np.concatenate([[*WRIST_RANGE[:, 0], *as_array(h.lower)] for h in self.hand_models.values()])
+        high = np.concatenate([[*WRIST_RANGE[:, 1], *as_array(h.upper)] for h in self.hand_models.values()])
         self.target_space = gym.spaces.Box(low.astype(np.float32), high.astype(np.float32), dtype=np.float32)
         """The wrists' and the hands' targets (what `joints` control takes)."""
         if self.ee is None:
@@ -286,7 +287,7 @@ class OpfaSimEnv(gym.Env):
         for side, arm in self.scene.arms.items():
             hand = self.hand_models[side]
             self.data.qpos[arm.wrist_qpos] = self.homes[side]
-            self.data.qpos[arm.chain_qpos] = numpy(hand.expand(hand.pose("open")[None])[0])
+            self.data.qpos[arm.chain_qpos] = as_array(hand.expand(hand.pose("open")[None])[0])
             self.data.ctrl[arm.ctrl] = np.concatenate([self.homes[side], self.hand_open[side]])
         mujoco.mj_forward(self.model, self.data)
         mujoco.mj_step(self.model, self.data, SETTLE_STEPS)
