@@ -11,7 +11,6 @@ same form) and `home` (joint values). The built-in arms are `arm_models/<name>.y
 
 from __future__ import annotations
 
-import math
 import sysconfig
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,6 +18,7 @@ from pathlib import Path
 import torch
 
 from lerobot_opfa.arms.ik import ArmChain
+from lerobot_opfa.hands.frame import rpy_matrix
 from lerobot_opfa.resources import builtin_or_path, resource_dir
 from lerobot_opfa.yaml_files import read_yaml
 
@@ -50,16 +50,9 @@ def package_share(package: str) -> Path:
 
 
 def transform(xyz, rpy) -> torch.Tensor:
-    """(4, 4) float64: translation `xyz`, rotation `rpy` (URDF's fixed-axis roll, pitch, yaw)."""
-    roll, pitch, yaw = (float(a) for a in rpy)
-    cr, sr, cp, sp, cy, sy = (f(a) for a in (roll, pitch, yaw) for f in (math.cos, math.sin))
-    rotation = [
-        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-        [-sp, cp * sr, cp * cr],
-    ]
+    """(4, 4) float64: translation `xyz`, rotation `rpy` (URDF roll, pitch, yaw: `frame.rpy_matrix`)."""
     out = torch.eye(4, dtype=torch.float64)
-    out[:3, :3] = torch.tensor(rotation, dtype=torch.float64)
+    out[:3, :3] = torch.from_numpy(rpy_matrix(tuple(float(a) for a in rpy)))
     out[:3, 3] = torch.tensor([float(v) for v in xyz], dtype=torch.float64)
     return out
 
