@@ -261,9 +261,9 @@ def test_the_simulator_and_a_robot_with_permuted_scaled_entries_go_through_the_s
         used.append(("split", key, self))
         return split(self, x, key)
 
-    def spy_join(self, body, q):
+    def spy_join(self, body, q, arms=None):
         used.append(("join", ACTION, self))
-        return join(self, body, q)
+        return join(self, body, q, arms)
 
     encoder = next(step for step in pre.steps if isinstance(step, OpfaEncodeJointsStep))
 

@@ -36,6 +36,13 @@ values mean the same on both sides (a flexion is a flexion), only the geometry i
       - side: right
         hand: inspire
         joints: {kRightHandIndex: {joint: index_mcp_flex, scale: -1.47, offset: 1.47}, ...}
+
+A hand on an arm the package models (`arm: ur5`, a built-in or an arm spec path; in a slot, or at the top of
+a one-handed map) has its arm's joint entries read as the wrist's pose in the workspace (`arms.pose`: FK on
+the way in, IK seeded at the joints the arm holds on the way out): the body convention robots of different
+arms share. The arm's entries are named after its joints (`shoulder_pan_joint`, `<joint>.pos`, or with the
+slot's side, `left_<joint>.pos`) or listed in `arm_joints` (entry: arm joint, or `{joint, scale, offset}`
+for degrees). An armed robot's body is its arms: every other entry is a hand's, or dropped.
 """
 
 from __future__ import annotations
@@ -90,6 +97,10 @@ def arm_entries(arms: dict[str, HandSpec], body: list[str]) -> list[str]:
     return [sided(side, name) for side, spec in arms.items() for name in (*body, *spec.actuated_joints)]
 
 
+Columns = tuple[list[int], torch.Tensor, torch.Tensor]
+"""A slot's columns of a robot's vector, with the scale and offset that turn each into its joint's units."""
+
+
 class JointMapError(ValueError):
     """A joint map that does not fit its dataset or its hand; the message names the map and the entry."""
 
@@ -103,7 +114,10 @@ class MappedJoint:
 
 
 SIDES = ("left", "right")
-SLOT_FIELDS = ("side", "hand", "joints", "state_joints", "action_joints")
+SLOT_FIELDS = ("side", "hand", "joints", "state_joints", "action_joints", "arm", "arm_joints")
+WRIST_POSE = "wrist"
+"""An armed robot's body entries in the policy's space: `wrist.<POSE_NAMES>` (`left.wrist.x` with sides)."""
+DEGREE = math.pi / 180
 
 
 @dataclass(frozen=True)
@@ -119,6 +133,11 @@ class HandSlot:
     """Entries of only the state, or only the action -> the spec joint each holds (`key_joints`)."""
     side: str | None = None
     """`left` or `right` (None: a one-handed robot's, the side unsaid)."""
+    arm: str | None = None
+    """The arm the hand is mounted on (what `arms.spec.load_arm` takes); None: the body entries are the
+    policy's as they are."""
+    arm_joints: dict[str, MappedJoint] = field(default_factory=dict)
+    """Entry of both the state and the action -> the arm joint it holds (bound: every joint of the arm)."""
 
     def key_joints(self, key: str) -> dict[str, MappedJoint]:
         """`key`'s entries ("observation.state" or "action") that hold this hand's joints."""
@@ -130,14 +149,19 @@ class HandSlot:
 
     @classmethod
     def from_dict(cls, raw: dict, source: str) -> HandSlot:
-        tables = ("joints", "state_joints", "action_joints")
-        if not any(raw.get(t) for t in tables):
+        tables = ("joints", "state_joints", "action_joints", "arm_joints")
+        if not any(raw.get(t) for t in tables[:3]):
             raise JointMapError(
                 f"{source}: needs a mapping 'joints' of dataset entry -> spec joint (or, where the state "
                 "and the action hold the hand under different entries, 'state_joints' and 'action_joints')"
             )
         if not isinstance(raw.get("hand"), str):
             raise JointMapError(f"{source}: needs 'hand', a built-in hand's name or a spec.yaml path")
+        arm = raw.get("arm")
+        if arm is not None and not isinstance(arm, str):
+            raise JointMapError(f"{source}: 'arm' must be a built-in arm's name or an arm spec path")
+        if raw.get("arm_joints") and arm is None:
+            raise JointMapError(f"{source}: 'arm_joints' needs 'arm', the arm they are the joints of")
         side = raw.get("side")
         if side is not None and side not in SIDES:
             raise JointMapError(f"{source}: 'side' must be one of {list(SIDES)}, got {side!r}")
@@ -151,7 +175,10 @@ class HandSlot:
             }
             for table in tables
         }
-        return cls(raw["hand"], joints["joints"], joints["state_joints"], joints["action_joints"], side)
+        return cls(
+            raw["hand"], joints["joints"], joints["state_joints"], joints["action_joints"], side, arm,
+            joints["arm_joints"],
+        )  # fmt: skip
 
     def to_dict(self) -> dict:
         def table(joints: dict[str, MappedJoint]) -> dict:
@@ -163,7 +190,8 @@ class HandSlot:
             if joints
         }
         side = {} if self.side is None else {"side": self.side}
-        return {**side, "hand": self.hand, "joints": table(self.joints), **apart}
+        arm = {} if self.arm is None else {"arm": self.arm, "arm_joints": table(self.arm_joints)}
+        return {**side, "hand": self.hand, "joints": table(self.joints), **apart, **arm}
 
 
 @dataclass(frozen=True)
@@ -179,6 +207,8 @@ class JointMap:
     action_names: tuple[str, ...] = ()
     """The robot's entries the map is bound to (`bind`); empty for a map as read from its file."""
     _columns: dict = field(default_factory=dict, compare=False, repr=False)
+    _arms: dict = field(default_factory=dict, compare=False, repr=False)
+    """Arm reference -> its `arms.pose.ArmBody`, loaded on first use."""
 
     # --- reading and writing ----------------------------------------------------------------------------
     @classmethod
@@ -193,6 +223,9 @@ class JointMap:
             hand = slot.get("hand") if isinstance(slot, dict) else None
             if isinstance(hand, str) and hand not in builtin_hands() and not Path(hand).is_absolute():
                 slot["hand"] = str((path.parent / hand).resolve())
+            arm = slot.get("arm") if isinstance(slot, dict) else None
+            if isinstance(arm, str) and arm.endswith((".yaml", ".yml")) and not Path(arm).is_absolute():
+                slot["arm"] = str((path.parent / arm).resolve())
         return cls.from_dict(raw, str(path))
 
     @classmethod
@@ -303,6 +336,8 @@ class JointMap:
         state, action = list(map(str, state_names)), list(map(str, action_names))
         for slot in self.slots:
             self._bind_slot(slot, state, action)
+        slots = tuple(replace(s, arm_joints=self._arm_entries(s, state, action)) for s in self.slots)
+        self = replace(self, slots=slots)
         for key in (OBS_STATE, ACTION):
             claimed = [e for slot in self.slots for e in slot.key_joints(key)]
             twice = sorted({e for e in claimed if claimed.count(e) > 1})
@@ -328,7 +363,76 @@ class JointMap:
                 )
             if entry not in state:
                 raise JointMapError(f"{self.source}: drop lists '{entry}', which is not in observation.state")
-        return replace(self, state_names=tuple(state), action_names=tuple(action), _columns={})
+        bound = replace(self, state_names=tuple(state), action_names=tuple(action), _columns={})
+        bound._check_arm_body()
+        return bound
+
+    def _arm_entries(self, slot: HandSlot, state: list[str], action: list[str]) -> dict[str, MappedJoint]:
+        """The slot's arm entries: as the map gives them, or the entries named after the arm's joints
+        (`<joint>`, `<joint>.pos`, with the slot's side `<side>_<joint>[.pos]`), each in the state and the
+        action."""
+        if slot.arm is None:
+            return {}
+        where = f"{self.source}" + (f" ({slot.side} arm)" if slot.side else "")
+        joints = self.arm(slot.arm).spec.joints
+        given = dict(slot.arm_joints)
+        if not given:
+            for joint in joints:
+                names = [joint, f"{joint}{POSITION_SUFFIX}"]
+                names += [sided(slot.side, n) for n in names] if slot.side else []
+                found = [n for n in names if n in state and n in action]
+                if not found:
+                    raise JointMapError(
+                        f"{where}: arm '{slot.arm}' joint '{joint}' has no entry in both the state and the "
+                        f"action ({' or '.join(names)}); name the arm's entries in `arm_joints`"
+                    )
+                given[found[0]] = MappedJoint(joint)
+        held = [j.joint for j in given.values()]
+        if sorted(held) != sorted(joints):
+            raise JointMapError(
+                f"{where}: `arm_joints` must name each joint of arm '{slot.arm}' once ({', '.join(joints)}), "
+                f"got {held}"
+            )
+        absent = [e for e in given if e not in state or e not in action]
+        if absent:
+            raise JointMapError(
+                f"{where}: arm entry {absent[0]!r} is not in both the state and the action (an arm's joints "
+                "are read in both)"
+            )
+        return given
+
+    def _check_arm_body(self) -> None:
+        """An armed robot's body is its arms' wrist poses: each slot names an arm, and every entry is an
+        arm's or a hand's joint or dropped (another entry would have nowhere to go in the policy's space)."""
+        armed = [slot.arm is not None for slot in self.slots]
+        if not any(armed):
+            return
+        if not all(armed):
+            raise JointMapError(f"{self.source}: give every hand slot its `arm`, or none")
+        for key in (OBS_STATE, ACTION):
+            free = self._free_body(key)
+            if free:
+                fix = "drop them (`drop:`)" if key == OBS_STATE else "an action entry must be a joint"
+                raise JointMapError(
+                    f"{self.source}: {key} entries {free[:4]} are neither an arm's nor a hand's joint; an "
+                    f"armed robot's body is its wrist pose: {fix}"
+                )
+
+    @property
+    def armed(self) -> bool:
+        """Whether the body entries are arm joints, read as the wrists' poses."""
+        return self.slots[0].arm is not None
+
+    def arm(self, ref: str):
+        """The `arms.pose.ArmBody` of arm reference `ref`, loaded once per map."""
+        from lerobot_opfa.arms.pose import ArmBody  # pytorch-kinematics only for maps with arms
+
+        if ref not in self._arms:
+            try:
+                self._arms[ref] = ArmBody.load(ref)
+            except ValueError as err:
+                raise JointMapError(f"{self.source}: arm '{ref}': {err}") from None
+        return self._arms[ref]
 
     def _bind_slot(self, slot: HandSlot, state: list[str], action: list[str]) -> None:
         spec = slot.spec
@@ -439,10 +543,44 @@ class JointMap:
                     )
 
     def body_names(self, key: str) -> list[str]:
-        """`key`'s entries besides the hands' joints (and the dropped ones), in its order: the policy models
-        them as they are."""
-        joints = self.key_joints(key)
+        """The body entries of the policy's `key`: the robot's entries besides the hands' joints (and the
+        dropped ones), in its order, which the policy models as they are; for an armed robot each arm's
+        wrist pose (`wrist.x`, ..., `left.wrist.x` with sides)."""
+        if not self.armed:
+            return self._free_body(key)
+        from lerobot_opfa.arms.pose import POSE_NAMES
+
+        prefixes = [f"{slot.side}.{WRIST_POSE}" if slot.side else WRIST_POSE for slot in self.slots]
+        return [f"{prefix}.{name}" for prefix in prefixes for name in POSE_NAMES]
+
+    def _free_body(self, key: str) -> list[str]:
+        joints = {**self.key_joints(key), **{e: j for slot in self.slots for e, j in slot.arm_joints.items()}}
         return [n for n in self.names(key) if n not in joints and n not in self.drop]
+
+    def arm_joints(self, x: torch.Tensor, key: str) -> list[torch.Tensor]:
+        """Per slot, its arm's joints (..., dof) in the arm's order and units, from a robot's `key` rows."""
+        return [self._scaled(x, columns) for columns in self._indices(key)[2]]
+
+    def check_arms(self, x: torch.Tensor, key: str, where: str) -> None:
+        """Refuses arm joints outside the arm's limits, naming the entry (recorded in degrees where the
+        spec's radians are declared: the scale that fits is named)."""
+        arms = self.arm_joints(x.detach().to("cpu", torch.float64), key)
+        for slot, q in zip(self.slots, arms, strict=True):
+            chain = self.arm(slot.arm).chain
+            q = q.reshape(-1, q.shape[-1])
+            for i, joint in enumerate(self.arm(slot.arm).spec.joints):
+                low, high = float(chain.lower[i]), float(chain.upper[i])
+                recorded = (float(q[:, i].min()), float(q[:, i].max())) if len(q) else (low, high)
+                if fits_limits(recorded, (low, high)):
+                    continue
+                entry = next(e for e, j in slot.arm_joints.items() if j.joint == joint)
+                degrees = fits_limits(recorded, (low, high), DEGREE)
+                hint = f"in degrees? give it `{{joint: {joint}, scale: {DEGREE:.7f}}}` in `arm_joints`"
+                raise JointMapError(
+                    f"{where}: arm entry {entry!r} ({joint}) spans [{recorded[0]:.3g}, {recorded[1]:.3g}], "
+                    f"outside the limits [{low:.3g}, {high:.3g}] of arm '{slot.arm}'; "
+                    + (hint if degrees else "check its unit and offset in `arm_joints`")
+                )
 
     def entry_noise(self, key: str, body_noise: float, joint_noise: list[torch.Tensor]) -> torch.Tensor:
         """(entries,) physical noise of each of `key`'s entries in the robot's units: `body_noise` for a
@@ -454,8 +592,9 @@ class JointMap:
                 noise[names.index(entry)] = float(per_joint[order.index(mapped.joint)]) / abs(mapped.scale)
         return noise
 
-    def _indices(self, key: str) -> tuple[list[int], list[tuple[list[int], torch.Tensor, torch.Tensor]]]:
-        """(body columns, per slot: its joint columns in spec order, scale, offset) of `key`'s vectors."""
+    def _indices(self, key: str) -> tuple[list[int], list[Columns], list[Columns]]:
+        """(body columns, per slot: its hand's joint columns in spec order, scale, offset; per armed slot:
+        its arm's, in the arm's joint order) of `key`'s vectors."""
         if key not in self._columns:
             if not self.action_names:
                 raise JointMapError(f"{self.source}: not bound to a robot's entries (JointMap.bind)")
@@ -468,7 +607,16 @@ class JointMap:
                     torch.tensor([j.scale for _, j in order], dtype=torch.float64),
                     torch.tensor([j.offset for _, j in order], dtype=torch.float64),
                 ))  # fmt: skip
-            self._columns[key] = ([names.index(n) for n in self.body_names(key)], slots)
+            arms = []
+            for slot in self.slots if self.armed else ():
+                by_joint = {j.joint: (e, j) for e, j in slot.arm_joints.items()}
+                order = [by_joint[j] for j in self.arm(slot.arm).spec.joints]
+                arms.append((
+                    [names.index(e) for e, _ in order],
+                    torch.tensor([j.scale for _, j in order], dtype=torch.float64),
+                    torch.tensor([j.offset for _, j in order], dtype=torch.float64),
+                ))  # fmt: skip
+            self._columns[key] = ([names.index(n) for n in self._free_body(key)], slots, arms)
         return self._columns[key]
 
     def names(self, key: str) -> list[str]:
@@ -484,17 +632,52 @@ class JointMap:
                 f"{key} has {x.shape[-1]} entries; the robot this policy was trained on has {len(names)} "
                 f"({self.source}: {', '.join(names[:6])} ...)"
             )
-        body, slots = self._indices(key)
-        qs = [x[..., c] * s.to(x.device, x.dtype) + o.to(x.device, x.dtype) for c, s, o in slots]
-        return x[..., body], qs
+        body, slots, _ = self._indices(key)
+        qs = [self._scaled(x, columns) for columns in slots]
+        if not self.armed:
+            return x[..., body], qs
+        poses = [
+            self.arm(slot.arm).wrist_pose(q.reshape(-1, q.shape[-1])).reshape(*q.shape[:-1], -1)
+            for slot, q in zip(self.slots, self.arm_joints(x, key), strict=True)
+        ]
+        return torch.cat(poses, dim=-1).to(x.dtype), qs
 
-    def join(self, body: torch.Tensor, qs: list[torch.Tensor]) -> torch.Tensor:
+    @staticmethod
+    def _scaled(x: torch.Tensor, columns: Columns) -> torch.Tensor:
+        index, scale, offset = columns
+        return x[..., index] * scale.to(x.device, x.dtype) + offset.to(x.device, x.dtype)
+
+    def reach(self, body: torch.Tensor, state: torch.Tensor | None = None) -> tuple[list[torch.Tensor], int]:
+        """An armed robot's wrist poses (B, [T], 9 per slot) -> per slot its arm's joints (B, [T], dof) by IK
+        seeded at the joints the arm holds in `state` (B, state entries; None: its home), each row's chunk in
+        one batch; and how many poses were out of reach (answered with the nearest pose, never refused)."""
+        rows = body.reshape(body.shape[0], -1, body.shape[-1])
+        seeds = None if state is None else self.arm_joints(state.reshape(len(rows), -1), OBS_STATE)
+        out, missed = [], 0
+        for i, slot in enumerate(self.slots):
+            arm = self.arm(slot.arm)
+            home = torch.tensor(arm.spec.home, dtype=torch.float64)
+            answers = []
+            for b, poses in enumerate(rows[..., 9 * i : 9 * (i + 1)]):
+                current = home if seeds is None else seeds[i][b]
+                q, out_of_reach = arm.joints(poses.detach().cpu(), current.detach().cpu())
+                answers.append(q)
+                missed += int(out_of_reach.sum())
+            out.append(torch.stack(answers).reshape(*body.shape[:-1], -1).to(body.device, body.dtype))
+        return out, missed
+
+    def join(
+        self, body: torch.Tensor, qs: list[torch.Tensor], arms: list[torch.Tensor] | None = None
+    ) -> torch.Tensor:
         """(body entries, per slot its joints in spec order and units) -> (..., action entries) in the
-        robot's order and units: the inverse of `split` on actions."""
-        columns_body, slots = self._indices(ACTION)
+        robot's order and units: the inverse of `split` on actions. An armed robot's body is its wrist
+        poses, put into its arms' joints by `arms` (`reach`; from the arms' home when not given)."""
+        columns_body, slots, arm_columns = self._indices(ACTION)
+        if self.armed and arms is None:
+            arms, _ = self.reach(body)
         out = body.new_empty((*body.shape[:-1], len(self.action_names)))
-        out[..., columns_body] = body
-        for q, (columns, scale, offset) in zip(qs, slots, strict=True):
+        out[..., columns_body] = body[..., :0] if self.armed else body
+        for q, (columns, scale, offset) in zip([*qs, *(arms or [])], [*slots, *arm_columns], strict=True):
             out[..., columns] = ((q - offset.to(q.device, q.dtype)) / scale.to(q.device, q.dtype)).to(
                 out.dtype
             )

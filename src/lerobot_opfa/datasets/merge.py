@@ -371,6 +371,9 @@ def _check_limits(source: _Input, galr) -> None:
         for hand, q, slot in zip(hands, qs, joint_map.slots, strict=True):
             side = f", {slot.side} hand" if slot.side else ""
             hand.check_within_limits(q, f"{source.root} ({key}, through {joint_map.source}{side})")
+        where = f"{source.root} ({key}, through {joint_map.source})"
+        if joint_map.armed:
+            joint_map.check_arms(torch.tensor(values), key, where)
         joint_map.check_spans(torch.tensor(values), key, [(hand.lower, hand.upper) for hand in hands])
     joint_map.check_senses(torch.tensor(columns[OBS_STATE]), torch.tensor(columns[ACTION]), episodes)
 

@@ -1,6 +1,7 @@
 """Small synthetic per-hand LeRobotDatasets in the layout the simulator records (wrist pose + the hand's
-joints, flattened point cloud, object state). For tests, benchmarks and trying the pipeline without the
-simulator; the motions are smooth random reaches and grasps, not task demonstrations."""
+joints, flattened point cloud, object state), or as a robot with an arm records it (the arm's joints as
+`<joint>.pos`, then the hand's). For tests, benchmarks and trying the pipeline without the simulator; the
+motions are smooth random reaches and grasps, not task demonstrations."""
 
 from __future__ import annotations
 
@@ -43,6 +44,59 @@ def write_synthetic_dataset(
     create = dict(repo_id=repo_id, fps=fps, features=features, robot_type=hand, use_videos=False)
     with new_dataset(root, **create) as dataset:
         _write_episodes(dataset, model, episodes, frames, n_points, seed)
+    return Path(root)
+
+
+def write_armed_dataset(
+    root: Path | str,
+    arm: str,
+    hand: str,
+    episodes: int = 2,
+    frames: int = 24,
+    n_points: int = 64,
+    fps: int = 10,
+    seed: int = 0,
+    arm_scale: float = 1.0,
+) -> Path:
+    """Writes a dataset of `hand` on `arm` (an `arms.spec.load_arm` reference) under `root`: state and action
+    are the arm's joints (`<joint>.pos`, radians divided by `arm_scale`: 1/DEGREE records degrees), then the
+    hand's; the arm sways about its home, 0.15 rad at most per joint. `robot_type` is `<arm>_<hand>`."""
+    from lerobot_opfa.arms.spec import load_arm
+
+    spec, model = load_arm(arm), load_hand(hand)
+    arm_names = [f"{joint}.pos" for joint in spec.joints]
+    names = [*arm_names, *model.joint_names]
+    features = {
+        OBS_STATE: {"dtype": "float32", "shape": (len(names),), "names": names},
+        ACTION: {"dtype": "float32", "shape": (len(names),), "names": names},
+        OBS_POINTCLOUD: {"dtype": "float32", "shape": (3 * n_points,), "names": None},
+        OBS_ENV_STATE: {"dtype": "float32", "shape": (3,), "names": ["object_x", "object_y", "object_z"]},
+    }
+    create = dict(
+        repo_id=f"local/{Path(root).name}", fps=fps, features=features, robot_type=f"{spec.name}_{hand}",
+        use_videos=False,
+    )  # fmt: skip
+    rng = np.random.default_rng(seed)
+    home = np.array(spec.home)
+    lower, upper = model.lower.double().numpy(), model.upper.double().numpy()
+    with new_dataset(root, **create) as dataset:
+        for _ in range(episodes):
+            t = np.arange(frames + 1)[:, None] / fps
+            phase, rate = rng.uniform(0, 2 * np.pi, len(home)), rng.uniform(0.5, 1.5, len(home))
+            joints = home + 0.15 * np.sin(rate * t + phase)
+            grasp = lower + (upper - lower) * rng.uniform(0.3, 0.9, len(lower))
+            closing = np.clip(t / t[-1], 0, 1)
+            trajectory = np.concatenate([joints / arm_scale, lower + (grasp - lower) * closing], axis=1)
+            target = rng.uniform(-0.1, 0.1, 3)
+            for i in range(frames):
+                dataset.add_frame({
+                    OBS_STATE: trajectory[i].astype(np.float32),
+                    ACTION: trajectory[i + 1].astype(np.float32),
+                    OBS_POINTCLOUD: rng.normal(target, 0.03, (n_points, 3)).reshape(-1).astype(np.float32),
+                    OBS_ENV_STATE: target.astype(np.float32),
+                    "task": "lift the object",
+                })  # fmt: skip
+            dataset.save_episode()
     return Path(root)
 
 

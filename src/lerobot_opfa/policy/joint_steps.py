@@ -25,6 +25,7 @@ pipelines of one checkpoint drive two robots in one process.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
 from functools import cached_property, partial
 from typing import Any
@@ -48,6 +49,8 @@ from lerobot_opfa.hands.registry import builtin_hands, load_hand, load_spec
 from lerobot_opfa.hands.universal import UNIVERSAL_JOINT_NAMES
 from lerobot_opfa.policy.action_spaces import ACTION_SPACES, ActionSpace
 from lerobot_opfa.policy.latent_cache import LatentCache
+
+logger = logging.getLogger(__name__)
 
 LOAD_PAIRED = "load the two with lerobot's make_pre_post_processors(..., pretrained_path=...): it pairs them"
 """How a postprocessor gets its preprocessor's encode step, the one it reads the robot from."""
@@ -354,6 +357,8 @@ class FrameRobot:
 
     ids: torch.Tensor
     joint_map: JointMap | None
+    state: torch.Tensor | None = None
+    """The robot's state as it gave it (its entries): an armed robot's IK starts from the joints it holds."""
 
 
 @ProcessorStepRegistry.register("opfa_encode_joints")
@@ -396,7 +401,7 @@ class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
         state = obs[OBS_STATE].float()
         action = new.get(TransitionKey.ACTION)
         live = not isinstance(action, torch.Tensor)  # a robot's (training frames carry their action)
-        joint_map = None
+        joint_map, robot_state = None, None
         if OBS_EMBODIMENT in obs:
             ids = frame_embodiments(obs[OBS_EMBODIMENT], len(self.robots[0])).to(state.device)
 
@@ -407,6 +412,7 @@ class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
                 (new.get(TransitionKey.COMPLEMENTARY_DATA) or {}).get(ROBOT_TYPE)
             )
             ids = torch.tensor(robot, device=state.device).expand(len(state), -1)
+            robot_state = state.reshape(len(ids), -1)
 
             def convert(x, key):
                 return self._from_robot(x, robot, joint_map, key, live)
@@ -415,7 +421,7 @@ class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
         if isinstance(action, torch.Tensor):
             new[TransitionKey.ACTION] = convert(action.float(), ACTION)
         obs[OBS_EMBODIMENT] = ids
-        self.last_frames = FrameRobot(ids, joint_map)
+        self.last_frames = FrameRobot(ids, joint_map, robot_state)
         new[TransitionKey.OBSERVATION] = obs
         return new
 
@@ -512,6 +518,8 @@ class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
         robot's joints must be near its hands' limits: a reading in other units would be encoded into a
         state the policy never saw, without a word (NaN is the state guard's, which names the entry)."""
         self.check_width(x, robot, joint_map, key)
+        if live and joint_map.armed and x.isfinite().all():
+            joint_map.check_arms(x, key, f"{OBS_STATE} of the robot (through {joint_map.source})")
         body, qs = joint_map.split(x, key)
         parts = [body]
         for index, q, slot in zip(robot, qs, joint_map.slots, strict=True):
@@ -627,6 +635,11 @@ class OpfaDecodeJointsStep(_HandSpace, AbsoluteActionsProcessorStep):
     def __post_init__(self):
         if self.action_space is not None:
             super().__post_init__()
+        self._unreachable = 0
+
+    def reset(self) -> None:
+        """A new episode: its first pose out of an arm's reach is reported again."""
+        self._unreachable = 0
 
     @property
     def hands(self) -> _HandSpace:
@@ -645,7 +658,17 @@ class OpfaDecodeJointsStep(_HandSpace, AbsoluteActionsProcessorStep):
         robot = hands.robot_of(frames.ids)
         wrist, *parts = action.split([hands.body_dim(ACTION), *hands.slot_widths], dim=-1)
         qs = [hands.space.to_joints(hands, index, part) for index, part in zip(robot, parts, strict=True)]
-        new[TransitionKey.ACTION] = (frames.joint_map or hands.trained_map(robot)).join(wrist, qs)
+        joint_map = frames.joint_map or hands.trained_map(robot)
+        arms = None
+        if joint_map.armed:
+            arms, missed = joint_map.reach(wrist, frames.state)
+            if missed and not self._unreachable:
+                logger.warning(
+                    "%d wrist pose(s) the policy asked for are out of the arm's reach (%s); the arm goes to "
+                    "the nearest it reaches (reported once per episode)", missed, joint_map.source,
+                )  # fmt: skip
+            self._unreachable += missed
+        new[TransitionKey.ACTION] = joint_map.join(wrist, qs, arms)
         return new
 
     def get_config(self) -> dict[str, Any]:

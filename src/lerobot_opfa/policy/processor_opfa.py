@@ -179,6 +179,8 @@ def _check_robot_frames(
     window at every step."""
     joint_map, robot, joints = layout.joint_maps[0], layout.robots[0], {}
     for key in (OBS_STATE, ACTION):
+        if joint_map.armed:
+            joint_map.check_arms(frames[key], key, f"{root} ({key}, through {joint_map.source})")
         _, qs = joint_map.split(frames[key], key)
         for index, slot, q in zip(robot, joint_map.slots, qs, strict=True):
             side = f", {slot.side} hand" if slot.side else ""

@@ -1,0 +1,135 @@
+"""Robots of different arms co-train: a joint map that names the arm reads its joints as the wrist's pose in
+the workspace (FK), the policy models that pose whatever the arm, and the postprocessor turns it back into
+each robot's own arm joints by IK seeded at the joints the arm holds."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import pytest
+import torch
+import yaml
+from lerobot.processor import TransitionKey, create_transition
+from lerobot.utils.constants import ACTION, OBS_STATE
+
+from lerobot_opfa import cli
+from lerobot_opfa.arms.ik import pose_error
+from lerobot_opfa.arms.pose import POSE_NAMES, pose_matrix
+from lerobot_opfa.arms.spec import load_arm
+from lerobot_opfa.datasets.io import read_columns
+from lerobot_opfa.datasets.joint_map import DEGREE, JointMap, JointMapError
+from lerobot_opfa.datasets.layout import read_layout
+from lerobot_opfa.datasets.synthetic import write_armed_dataset
+from lerobot_opfa.features import OBS_POINTCLOUD, ROBOT_TYPE
+from lerobot_opfa.hands.registry import load_spec
+
+ROBOTS = {"ur5_inspire": ("ur5", "inspire", 30), "panda_umi": ("panda", "umi", 10)}
+"""Robot -> (arm, hand, fps): two robots that differ in arm, hand and rate."""
+
+
+def write_map(path: Path, arm: str, hand: str, **extra) -> Path:
+    joints = {joint: joint for joint in load_spec(hand).actuated_joints}
+    path.write_text(yaml.safe_dump({"hand": hand, "joints": joints, "arm": arm, **extra}))
+    return path
+
+
+def recorded(root: Path) -> dict[str, torch.Tensor]:
+    columns = read_columns(root, [OBS_STATE, ACTION])
+    return {key: torch.tensor(values, dtype=torch.float64) for key, values in columns.items()}
+
+
+def armed_layout(tmp_path: Path, robot: str):
+    arm, hand, fps = ROBOTS[robot]
+    root = write_armed_dataset(tmp_path / robot, arm, hand, frames=20, n_points=32, fps=fps)
+    from lerobot.datasets.dataset_metadata import LeRobotDatasetMetadata
+
+    meta = LeRobotDatasetMetadata(f"local/{robot}", root=root)
+    joint_map = JointMap.load(write_map(tmp_path / f"{robot}.yaml", arm, hand))
+    return read_layout(meta.features, meta.robot_type, root, joint_map=joint_map), root
+
+
+@pytest.mark.parametrize("robot", list(ROBOTS))
+def test_an_arms_joints_round_trip_through_the_wrist_pose_within_a_millimetre(tmp_path, robot):
+    """Recorded arm joints -> the wrist pose (the body the policy models, named alike for every arm) -> IK
+    seeded at the state's joints -> the recorded action's joints: within 1 mm / 0.5 deg of its pose, the
+    hand's entries exact."""
+    layout, root = armed_layout(tmp_path, robot)
+    joint_map, frames = layout.joint_maps[0], recorded(root)
+    assert layout.wrist_names == [f"wrist.{name}" for name in POSE_NAMES]
+    body, qs = joint_map.split(frames[ACTION], ACTION)
+    arm = joint_map.arm(ROBOTS[robot][0])
+    (recorded_arm,) = joint_map.arm_joints(frames[ACTION], ACTION)
+    assert torch.allclose(pose_matrix(body), arm.spec.wrist_pose(arm.chain, recorded_arm), atol=1e-9)
+    arms, missed = joint_map.reach(body, frames[OBS_STATE])
+    action = joint_map.join(body, qs, arms)
+    assert missed == 0 and action.shape == frames[ACTION].shape
+    error = pose_error(arm.spec.wrist_pose(arm.chain, arms[0]), pose_matrix(body))
+    assert error[:, :3].norm(dim=-1).max() < 1e-3 and error[:, 3:].norm(dim=-1).max() < math.radians(0.5)
+    hand_columns = slice(len(arm.spec.joints), None)
+    assert torch.equal(action[:, hand_columns], frames[ACTION][:, hand_columns])
+
+
+@pytest.mark.parametrize("space", ["per_embodiment", "galr"])
+def test_two_robots_of_different_arms_hands_and_rates_merge_train_and_each_gets_its_own_joints_back(
+    tmp_path, space
+):
+    """A UR5 with an Inspire hand at 30 fps and a Panda with a umi gripper at 10 fps merge (the body: each
+    wrist's pose), train one policy, and each robot's action comes back as its own arm's joints, in its own
+    entries: a recorded frame through the preprocessor and back through the postprocessor is its action."""
+    from test_policy import batch_of, make_policy, save_galr
+
+    save_galr(tmp_path / "galr", ["umi", "inspire"])
+    maps = []
+    for robot, (arm, hand, fps) in ROBOTS.items():
+        write_armed_dataset(tmp_path / robot, arm, hand, frames=3 * fps // 2, n_points=32, fps=fps, seed=fps)
+        maps.append(f"{tmp_path / robot}={write_map(tmp_path / f'{robot}.yaml', arm, hand)}")
+    merge = ["dataset", "merge", "--inputs", *(str(tmp_path / r) for r in ROBOTS), "--output",
+             str(tmp_path / "merged"), "--galr", str(tmp_path / "galr"), "--joint-maps", *maps]  # fmt: skip
+    assert cli.main(merge) == 0
+    policy, pre, post, dataset = make_policy(tmp_path, "merged", action_space=space)
+    assert dataset.meta.fps == 10
+    assert dataset.meta.features[OBS_STATE]["names"][:9] == [f"wrist.{name}" for name in POSE_NAMES]
+    loss, _ = policy.forward(pre(batch_of(dataset, [0, 5, 20, 40])))
+    loss.backward()
+    assert loss.isfinite()
+    for robot, (arm, _, _) in ROBOTS.items():
+        frames = recorded(tmp_path / robot)
+        state, action = frames[OBS_STATE][:4].float(), frames[ACTION][:4].float()
+        observation = {OBS_STATE: state, OBS_POINTCLOUD: torch.zeros(len(state), 3 * 32)}
+        encoded = pre._forward(create_transition(observation=observation, action=action,
+                                                 complementary_data={ROBOT_TYPE: robot}))  # fmt: skip
+        back = post._forward(create_transition(action=encoded[TransitionKey.ACTION]))[TransitionKey.ACTION]
+        spec = load_arm(arm)
+        dof, chain = len(spec.joints), spec.chain()
+        assert back.shape == action.shape
+        error = pose_error(spec.wrist_pose(chain, back[:, :dof]), spec.wrist_pose(chain, action[:, :dof]))
+        assert error[:, :3].norm(dim=-1).max() < 1e-3 and error[:, 3:].norm(dim=-1).max() < math.radians(0.5)
+        assert (back[:, :dof] - action[:, :dof]).abs().max() < 0.05, robot  # a 7-DoF Panda may move its elbow
+        if space == "per_embodiment":
+            assert torch.allclose(back[:, dof:], action[:, dof:], atol=1e-4), robot
+
+
+def test_arm_joints_recorded_in_degrees_are_refused_naming_the_entry_and_the_scale(tmp_path, capsys):
+    write_armed_dataset(tmp_path / "ur5_deg", "panda", "umi", frames=8, n_points=16, arm_scale=DEGREE)
+    maps = f"{tmp_path / 'ur5_deg'}={write_map(tmp_path / 'map.yaml', 'panda', 'umi')}"
+    merge = ["dataset", "merge", "--inputs", str(tmp_path / "ur5_deg"), "--output", str(tmp_path / "out"),
+             "--joint-maps", maps]  # fmt: skip
+    assert cli.main(merge) != 0
+    error = capsys.readouterr().err
+    assert "'panda_joint1.pos'" in error and "in degrees" in error and "scale: 0.0174533" in error
+    assert not (tmp_path / "out").exists()
+
+
+def test_an_armed_map_that_leaves_an_entry_without_a_place_or_misses_a_joint_is_refused(tmp_path):
+    names = [f"{j}.pos" for j in load_arm("ur5").joints] + ["left_jaw_joint"]
+    spec_map = {"hand": "umi", "joints": {"left_jaw_joint": "left_jaw_joint"}, "arm": "ur5"}
+    with pytest.raises(JointMapError, match=r"\['base_current'\] are neither an arm's nor a hand's joint"):
+        JointMap.from_dict(spec_map).bind([*names, "base_current"], names)
+    JointMap.from_dict({**spec_map, "drop": ["base_current"]}).bind([*names, "base_current"], names)
+    with pytest.raises(JointMapError, match="joint 'wrist_3_joint' has no entry"):
+        JointMap.from_dict(spec_map).bind(names[:5] + names[6:], names[:5] + names[6:])
+    with pytest.raises(JointMapError, match="must name each joint of arm 'ur5' once"):
+        JointMap.from_dict({**spec_map, "arm_joints": {names[0]: "shoulder_pan_joint"}}).bind(names, names)
+    with pytest.raises(JointMapError, match="arm 'ur6': unknown arm 'ur6' .*did you mean 'ur5'"):
+        JointMap.from_dict({**spec_map, "arm": "ur6"}).bind(names, names)
