@@ -13,7 +13,10 @@ import torch
 
 from lerobot_opfa.arms.pose import (
     ArmBody,
+    EndEffectorPose,
+    FloatingWrist,
     floating_tool_pose,
+    matrix_rotation_vector,
     pose_matrix,
     pose_vector,
     rotation_vector_matrix,
@@ -65,6 +68,40 @@ def test_lerobots_rotation_vector_is_read_as_mujoco_reads_an_axis_angle():
         mujoco.mju_quat2Mat(matrix, quat)
         assert np.abs(ours.numpy() - matrix.reshape(3, 3)).max() < 1e-12
     assert torch.allclose(rotation_vector_matrix(torch.zeros(1, 3)), torch.eye(3)[None])
+
+
+def test_a_rotation_vector_comes_back_from_its_matrix_near_no_turn_and_a_half_turn():
+    axes = torch.nn.functional.normalize(
+        torch.randn(64, 3, generator=torch.Generator().manual_seed(2)), dim=-1
+    )
+    angles = torch.cat(
+        [torch.tensor([0.0, 1e-9, 1e-4, math.pi - 1e-4, math.pi - 1e-9]), torch.rand(59) * math.pi]
+    )
+    vectors = (axes.double() * angles.double()[:, None])[:-1]
+    back = matrix_rotation_vector(rotation_vector_matrix(vectors))
+    assert torch.allclose(rotation_vector_matrix(back), rotation_vector_matrix(vectors), atol=1e-9)
+    assert torch.allclose(back[:3], vectors[:3], atol=1e-9) and torch.allclose(
+        back[5:], vectors[5:], atol=1e-9
+    )
+
+
+@pytest.mark.parametrize("body", [FloatingWrist(), EndEffectorPose()])
+def test_a_pose_body_gives_back_the_entries_its_pose_came_from(body):
+    """The simulator's floating wrist (within its range) and LeRobot's end-effector entries come back from
+    the wrist pose in closed form; the floating wrist's yaw continues the one it holds, not 2 pi off."""
+    generator = np.random.default_rng(3)
+    entries = torch.from_numpy(generator.uniform(WRIST_RANGE[:, 0], WRIST_RANGE[:, 1], (64, 6)))
+    if isinstance(body, EndEffectorPose):
+        entries[:, 3:] = torch.from_numpy(generator.normal(0, 1, (64, 3))).clamp(-1.5, 1.5)
+    current = torch.tensor(body.home, dtype=torch.float64)
+    back, missed = body.joints(body.wrist_pose(entries), current)
+    assert not missed.any() and torch.allclose(back, entries, atol=1e-9)
+    if isinstance(body, FloatingWrist):
+        turned = entries.clone()
+        turned[:, 3] += 2 * math.pi
+        near_turn = current.clone()
+        near_turn[3] = 2 * math.pi
+        assert torch.allclose(body.joints(body.wrist_pose(turned), near_turn)[0], turned, atol=1e-9)
 
 
 @pytest.mark.parametrize("arm", ["ur5", "panda"])

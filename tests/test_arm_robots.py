@@ -15,7 +15,7 @@ from lerobot.utils.constants import ACTION, OBS_STATE
 
 from lerobot_opfa import cli
 from lerobot_opfa.arms.ik import pose_error
-from lerobot_opfa.arms.pose import POSE_NAMES, pose_matrix
+from lerobot_opfa.arms.pose import POSE_NAMES, pose_matrix, rotation_vector_matrix
 from lerobot_opfa.arms.spec import load_arm
 from lerobot_opfa.datasets.io import read_columns
 from lerobot_opfa.datasets.joint_map import DEGREE, JointMap, JointMapError
@@ -133,3 +133,55 @@ def test_an_armed_map_that_leaves_an_entry_without_a_place_or_misses_a_joint_is_
         JointMap.from_dict({**spec_map, "arm_joints": {names[0]: "shoulder_pan_joint"}}).bind(names, names)
     with pytest.raises(JointMapError, match="arm 'ur6': unknown arm 'ur6' .*did you mean 'ur5'"):
         JointMap.from_dict({**spec_map, "arm": "ur6"}).bind(names, names)
+
+
+@pytest.mark.parametrize("space", ["per_embodiment", "galr"])
+def test_the_floating_simulator_hands_demos_co_train_with_an_arm_and_the_simulator_gets_its_entries_back(
+    tmp_path, space
+):
+    """The simulator's floating umi demos, read through `arm: floating`, and a UR5 with an Inspire hand
+    share the wrist-pose body and merge; the simulator (a robot named by its hands) then gets its six wrist
+    entries and jaw back from the policy's pose, exactly."""
+    from test_policy import make_policy, rollout, save_galr
+
+    from lerobot_opfa.datasets.synthetic import write_synthetic_dataset
+
+    save_galr(tmp_path / "galr", ["umi", "inspire"])
+    write_synthetic_dataset(tmp_path / "sim_umi", "umi", episodes=2, frames=12, n_points=32, fps=10)
+    write_armed_dataset(tmp_path / "ur5_inspire", "ur5", "inspire", frames=12, n_points=32, fps=10)
+    maps = [f"{tmp_path / 'sim_umi'}={write_map(tmp_path / 'sim.yaml', 'floating', 'umi')}",
+            f"{tmp_path / 'ur5_inspire'}={write_map(tmp_path / 'ur5.yaml', 'ur5', 'inspire')}"]  # fmt: skip
+    inputs = [str(tmp_path / "sim_umi"), str(tmp_path / "ur5_inspire")]
+    merge = ["dataset", "merge", "--inputs", *inputs, "--output", str(tmp_path / "merged"), "--galr",
+             str(tmp_path / "galr"), "--joint-maps", *maps]  # fmt: skip
+    assert cli.main(merge) == 0
+    policy, pre, post, _ = make_policy(tmp_path, "merged", action_space=space)
+    frames = recorded(tmp_path / "sim_umi")
+    state, action = frames[OBS_STATE][:4].float(), frames[ACTION][:4].float()
+    observation = {OBS_STATE: state, OBS_POINTCLOUD: torch.zeros(len(state), 3 * 32)}
+    encoded = pre._forward(create_transition(observation=observation, action=action,
+                                             complementary_data={ROBOT_TYPE: "umi"}))  # fmt: skip
+    back = post._forward(create_transition(action=encoded[TransitionKey.ACTION]))[TransitionKey.ACTION]
+    assert torch.allclose(back[:, :6], action[:, :6], atol=1e-4)
+    if space == "per_embodiment":
+        assert torch.allclose(back, action, atol=1e-4)
+    acted = rollout(policy, pre, post, "umi", torch.randn(32 * 3) * 0.05, steps=2)
+    assert acted.shape == (2, 7) and acted.isfinite().all()
+
+
+def test_lerobots_end_effector_entries_are_the_wrist_pose_with_no_arm_model():
+    """A dataset in LeRobot's end-effector convention (`ee.x, ..., ee.wz` a rotation vector, as its
+    kinematic processor steps write them, and `ee.gripper_pos`) maps onto the wrist pose directly."""
+    names = ["ee.x", "ee.y", "ee.z", "ee.wx", "ee.wy", "ee.wz", "ee.gripper_pos"]
+    gripper = {"ee.gripper_pos": {"joint": "left_jaw_joint", "scale": -0.00044, "offset": 0.044}}
+    joint_map = JointMap.from_dict({"hand": "umi", "joints": gripper, "arm": "end_effector"}).bind(
+        names, names
+    )
+    frames = torch.tensor([[0.2, -0.1, 0.15, 0.3, -2.0, 0.5, 40.0], [0.25, 0.0, 0.1, 0.0, 0.0, 0.0, 100.0]])
+    body, (jaw,) = joint_map.split(frames.double(), ACTION)
+    rotation = rotation_vector_matrix(frames[:, 3:6].double())
+    assert torch.allclose(pose_matrix(body)[:, :3, :3], rotation, atol=1e-12)
+    assert torch.allclose(body[:, :3], frames[:, :3].double()) and torch.allclose(
+        jaw[:, 0], 0.044 - 0.00044 * frames[:, 6].double()
+    )
+    assert torch.allclose(joint_map.join(body, [jaw]), frames.double(), atol=1e-9)

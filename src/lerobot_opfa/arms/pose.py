@@ -14,6 +14,7 @@ from torch import Tensor
 
 from lerobot_opfa.arms.ik import ArmChain, pose_error, solve_chunk
 from lerobot_opfa.arms.spec import ArmSpec, load_arm
+from lerobot_opfa.envs.scene import WRIST_JOINTS
 
 POSE_NAMES = ("x", "y", "z", "r11", "r21", "r31", "r12", "r22", "r32")
 """The wrist pose's entries: position, then the rotation matrix's first column, then its second."""
@@ -62,6 +63,27 @@ def floating_tool_pose(wrist: Tensor) -> Tensor:
     return out
 
 
+def matrix_rotation_vector(rotation: Tensor) -> Tensor:
+    """(..., 3, 3) -> (..., 3) axis times angle, angle in [0, pi]: the inverse of `rotation_vector_matrix`.
+    Near a half turn the antisymmetric part vanishes, so the axis is read from the symmetric part there."""
+    r = rotation
+    skew = torch.stack(
+        [r[..., 2, 1] - r[..., 1, 2], r[..., 0, 2] - r[..., 2, 0], r[..., 1, 0] - r[..., 0, 1]], -1
+    )
+    sine = skew.norm(dim=-1) / 2
+    cosine = (r.diagonal(dim1=-2, dim2=-1).sum(-1) - 1) / 2
+    angle = torch.atan2(sine, cosine)
+    outer = (r + r.transpose(-1, -2)) / 2 - cosine[..., None, None] * torch.eye(
+        3, dtype=r.dtype, device=r.device
+    )
+    column = outer.norm(dim=-2).argmax(-1)[..., None, None].expand(*r.shape[:-2], 3, 1)
+    axis = torch.nn.functional.normalize(outer.gather(-1, column).squeeze(-1), dim=-1)  # (1 - cos) k k^T
+    axis = torch.where((axis * skew).sum(-1, keepdim=True) < 0, -axis, axis)
+    near_half_turn = (angle > torch.pi - 1e-3).unsqueeze(-1)
+    scale = torch.where(sine > 1e-12, angle / (2 * sine.clamp(min=1e-12)), torch.full_like(sine, 0.5))
+    return torch.where(near_half_turn, axis * angle.unsqueeze(-1), skew * scale.unsqueeze(-1))
+
+
 def rotation_vector_matrix(rotation: Tensor) -> Tensor:
     """(..., 3) axis times angle (LeRobot's `ee.wx, ee.wy, ee.wz`) -> (..., 3, 3), by Rodrigues' formula."""
     angle = rotation.norm(dim=-1, keepdim=True)
@@ -89,6 +111,22 @@ class ArmBody:
         spec = load_arm(arm)
         return cls(spec, spec.chain())
 
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return self.spec.joints
+
+    @property
+    def home(self) -> tuple[float, ...]:
+        return self.spec.home
+
+    @property
+    def lower(self) -> Tensor:
+        return self.chain.lower
+
+    @property
+    def upper(self) -> Tensor:
+        return self.chain.upper
+
     def wrist_pose(self, q: Tensor) -> Tensor:
         """(B, dof) arm joints -> (B, 9) wrist poses."""
         return pose_vector(self.spec.wrist_pose(self.chain, q)).to(q.dtype)
@@ -102,3 +140,69 @@ class ArmBody:
         error = pose_error(self.chain.flange_pose(q), targets)
         missed = (error[:, :3].norm(dim=-1) > REACHED[0]) | (error[:, 3:].norm(dim=-1) > REACHED[1])
         return q.to(poses.dtype), missed
+
+
+def nearest_turn(angle: Tensor, reference: Tensor) -> Tensor:
+    """`angle` plus the whole turns that bring it nearest `reference`: an Euler angle read back from a pose
+    continues the one the robot holds rather than jumping by 2 pi."""
+    return reference + torch.remainder(angle - reference + torch.pi, 2 * torch.pi) - torch.pi
+
+
+@dataclass
+class FloatingWrist:
+    """The simulator's floating wrist as a body: its six entries (`WRIST_JOINTS`: x, y, z, yaw, pitch, roll)
+    <-> its tool pose (`floating_tool_pose`), both ways in closed form, so that a floating hand's demos share
+    the wrist-pose convention of hands on arms. Pitch within +-pi/2, as the simulator's range keeps it."""
+
+    name: str = "floating"
+    joint_names: tuple[str, ...] = WRIST_JOINTS
+    home: tuple[float, ...] = (0.0, 0.0, 0.3, 0.0, 0.0, 0.0)
+    lower: Tensor = torch.full((6,), -torch.inf, dtype=torch.float64)
+    upper: Tensor = torch.full((6,), torch.inf, dtype=torch.float64)
+
+    def wrist_pose(self, q: Tensor) -> Tensor:
+        return pose_vector(floating_tool_pose(q.to(torch.float64))).to(q.dtype)
+
+    def joints(self, poses: Tensor, current: Tensor) -> tuple[Tensor, Tensor]:
+        pose = pose_matrix(poses.to(torch.float64))
+        half_turn = rotation_about(0, torch.full(poses.shape[:-1], torch.pi, dtype=torch.float64))
+        r = pose[..., :3, :3] @ half_turn  # Rz(yaw) Ry(pitch) Rx(roll)
+        yaw = torch.atan2(r[..., 1, 0], r[..., 0, 0])
+        pitch = torch.asin((-r[..., 2, 0]).clamp(-1.0, 1.0))
+        roll = torch.atan2(r[..., 2, 1], r[..., 2, 2])
+        current = current.to(torch.float64)
+        angles = [nearest_turn(a, current[3 + i]) for i, a in enumerate((yaw, pitch, roll))]
+        q = torch.cat([pose[..., :3, 3], torch.stack(angles, dim=-1)], dim=-1)
+        return q.to(poses.dtype), torch.zeros(poses.shape[:-1], dtype=torch.bool)
+
+
+@dataclass
+class EndEffectorPose:
+    """LeRobot's end-effector entries as a body (`ee.x, ee.y, ee.z` in metres, `ee.wx, ee.wy, ee.wz` a
+    rotation vector, as its kinematic processor steps for the SO-100/101 write them) <-> the wrist pose, with
+    no arm model: the robot's own IK turns the pose into its joints."""
+
+    name: str = "end_effector"
+    joint_names: tuple[str, ...] = ("ee.x", "ee.y", "ee.z", "ee.wx", "ee.wy", "ee.wz")
+    home: tuple[float, ...] = (0.0, 0.0, 0.3, 0.0, 0.0, 0.0)
+    lower: Tensor = torch.full((6,), -torch.inf, dtype=torch.float64)
+    upper: Tensor = torch.full((6,), torch.inf, dtype=torch.float64)
+
+    def wrist_pose(self, q: Tensor) -> Tensor:
+        q64 = q.to(torch.float64)
+        rotation = rotation_vector_matrix(q64[..., 3:])
+        return torch.cat([q64[..., :3], rotation[..., :, 0], rotation[..., :, 1]], dim=-1).to(q.dtype)
+
+    def joints(self, poses: Tensor, current: Tensor) -> tuple[Tensor, Tensor]:
+        pose = pose_matrix(poses.to(torch.float64))
+        q = torch.cat([pose[..., :3, 3], matrix_rotation_vector(pose[..., :3, :3])], dim=-1)
+        return q.to(poses.dtype), torch.zeros(poses.shape[:-1], dtype=torch.bool)
+
+
+POSE_BODIES = {body.name: body for body in (FloatingWrist(), EndEffectorPose())}
+"""The bodies a joint map's `arm` may name that are poses already, not an arm's joints."""
+
+
+def load_body(arm: str) -> ArmBody | FloatingWrist | EndEffectorPose:
+    """The body a joint map's `arm` names: a pose body (`POSE_BODIES`), else an arm (`arms.spec.load_arm`)."""
+    return POSE_BODIES[arm] if arm in POSE_BODIES else ArmBody.load(arm)

@@ -42,7 +42,10 @@ a one-handed map) has its arm's joint entries read as the wrist's pose in the wo
 the way in, IK seeded at the joints the arm holds on the way out): the body convention robots of different
 arms share. The arm's entries are named after its joints (`shoulder_pan_joint`, `<joint>.pos`, or with the
 slot's side, `left_<joint>.pos`) or listed in `arm_joints` (entry: arm joint, or `{joint, scale, offset}`
-for degrees). An armed robot's body is its arms: every other entry is a hand's, or dropped.
+for degrees). An armed robot's body is its arms: every other entry is a hand's, or dropped. Two bodies are
+poses already and need no arm model: `arm: floating`, the simulator's floating wrist (`wrist_x, wrist_y,
+wrist_z, wrist_yaw, wrist_pitch, wrist_roll`), and `arm: end_effector`, LeRobot's end-effector entries
+(`ee.x, ee.y, ee.z, ee.wx, ee.wy, ee.wz`, a rotation vector).
 """
 
 from __future__ import annotations
@@ -296,20 +299,27 @@ class JointMap:
         }
 
     @classmethod
-    def named_after(cls, spec: HandSpec, state_names: list[str], action_names: list[str]) -> JointMap:
+    def named_after(
+        cls, spec: HandSpec, state_names: list[str], action_names: list[str], arm: str | None = None
+    ) -> JointMap:
         """The map of a robot whose hand entries carry the spec's joint names (or LeRobot's `<joint>.pos`),
-        in the spec's units."""
+        in the spec's units; its body entries those of `arm`, where given."""
         entries = {**{joint_of(n): n for n in action_names}, **{n: n for n in action_names}}
         joints = {entries.get(j, j): MappedJoint(j) for j in spec.actuated_joints}
-        slot = HandSlot(hand_ref(spec), joints)
+        slot = HandSlot(hand_ref(spec), joints, arm=arm)
         return cls((slot,), source=f"hand '{spec.name}'").bind(state_names, action_names)
 
     @classmethod
     def named_after_arms(
-        cls, arms: dict[str, HandSpec], state_names: list[str], action_names: list[str]
+        cls,
+        arms: dict[str, HandSpec],
+        state_names: list[str],
+        action_names: list[str],
+        arm: str | None = None,
     ) -> JointMap:
         """The map of a two-armed robot whose hand entries are named `<side>_<joint>` (or, as LeRobot's
-        robots record them, `<side>_<joint>.pos`), in the specs' units: the two-armed simulator's."""
+        robots record them, `<side>_<joint>.pos`), in the specs' units: the two-armed simulator's; each
+        side's body entries those of `arm`, where given."""
 
         def entry(side: str, joint: str) -> str:
             name = sided(side, joint)
@@ -317,7 +327,10 @@ class JointMap:
 
         slots = tuple(
             HandSlot(
-                hand_ref(spec), {entry(side, j): MappedJoint(j) for j in spec.actuated_joints}, side=side
+                hand_ref(spec),
+                {entry(side, j): MappedJoint(j) for j in spec.actuated_joints},
+                side=side,
+                arm=arm,
             )
             for side, spec in arms.items()
         )
@@ -374,7 +387,7 @@ class JointMap:
         if slot.arm is None:
             return {}
         where = f"{self.source}" + (f" ({slot.side} arm)" if slot.side else "")
-        joints = self.arm(slot.arm).spec.joints
+        joints = self.arm(slot.arm).joint_names
         given = dict(slot.arm_joints)
         if not given:
             for joint in joints:
@@ -424,14 +437,16 @@ class JointMap:
         return self.slots[0].arm is not None
 
     def arm(self, ref: str):
-        """The `arms.pose.ArmBody` of arm reference `ref`, loaded once per map."""
-        from lerobot_opfa.arms.pose import ArmBody  # pytorch-kinematics only for maps with arms
+        """The body `ref` names (`arms.pose.load_body`: an arm, or a pose body such as the simulator's
+        floating wrist), loaded once per map."""
+        from lerobot_opfa.arms.pose import POSE_BODIES, load_body  # pytorch-kinematics only for arms
 
         if ref not in self._arms:
             try:
-                self._arms[ref] = ArmBody.load(ref)
+                self._arms[ref] = load_body(ref)
             except ValueError as err:
-                raise JointMapError(f"{self.source}: arm '{ref}': {err}") from None
+                poses = ", ".join(POSE_BODIES)
+                raise JointMapError(f"{self.source}: arm '{ref}': {err} (or a pose body: {poses})") from None
         return self._arms[ref]
 
     def _bind_slot(self, slot: HandSlot, state: list[str], action: list[str]) -> None:
@@ -566,10 +581,10 @@ class JointMap:
         spec's radians are declared: the scale that fits is named)."""
         arms = self.arm_joints(x.detach().to("cpu", torch.float64), key)
         for slot, q in zip(self.slots, arms, strict=True):
-            chain = self.arm(slot.arm).chain
+            arm = self.arm(slot.arm)
             q = q.reshape(-1, q.shape[-1])
-            for i, joint in enumerate(self.arm(slot.arm).spec.joints):
-                low, high = float(chain.lower[i]), float(chain.upper[i])
+            for i, joint in enumerate(arm.joint_names):
+                low, high = float(arm.lower[i]), float(arm.upper[i])
                 recorded = (float(q[:, i].min()), float(q[:, i].max())) if len(q) else (low, high)
                 if fits_limits(recorded, (low, high)):
                     continue
@@ -610,7 +625,7 @@ class JointMap:
             arms = []
             for slot in self.slots if self.armed else ():
                 by_joint = {j.joint: (e, j) for e, j in slot.arm_joints.items()}
-                order = [by_joint[j] for j in self.arm(slot.arm).spec.joints]
+                order = [by_joint[j] for j in self.arm(slot.arm).joint_names]
                 arms.append((
                     [names.index(e) for e, _ in order],
                     torch.tensor([j.scale for _, j in order], dtype=torch.float64),
@@ -656,7 +671,7 @@ class JointMap:
         out, missed = [], 0
         for i, slot in enumerate(self.slots):
             arm = self.arm(slot.arm)
-            home = torch.tensor(arm.spec.home, dtype=torch.float64)
+            home = torch.tensor(arm.home, dtype=torch.float64)
             answers = []
             for b, poses in enumerate(rows[..., 9 * i : 9 * (i + 1)]):
                 current = home if seeds is None else seeds[i][b]

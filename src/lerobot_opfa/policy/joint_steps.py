@@ -40,6 +40,7 @@ from lerobot.processor.relative_action_processor import (
 from lerobot.utils.constants import ACTION, OBS_STATE
 
 from lerobot_opfa.datasets.joint_map import HANDS_SEPARATOR, SIDES, JointMap, arm_entries, hands_named_in
+from lerobot_opfa.envs.scene import WRIST_JOINTS
 from lerobot_opfa.features import OBS_EMBODIMENT, OBS_POINTCLOUD, ROBOT_TYPE, frame_embodiments
 from lerobot_opfa.galr.frozen import encode_joints, encode_universal, relocate_hand
 from lerobot_opfa.galr.model import Galr
@@ -52,6 +53,8 @@ from lerobot_opfa.policy.latent_cache import LatentCache
 
 logger = logging.getLogger(__name__)
 
+FLOATING = "floating"
+"""The body (`arms.pose.POSE_BODIES`) of the simulator's floating wrist."""
 LOAD_PAIRED = "load the two with lerobot's make_pre_post_processors(..., pretrained_path=...): it pairs them"
 """How a postprocessor gets its preprocessor's encode step, the one it reads the robot from."""
 
@@ -211,16 +214,30 @@ class _HandSpace:
         (`joint_map.arm_entries`). Any pair of the policy's hands, one it was not trained on too (each
         slot's hand is decoded on its own)."""
         if robot not in self._hands_maps:
-            if len(robot) == 1:
+            floating = FLOATING if self.armed else None  # the wrist pose, from the simulator's wrist entries
+            if len(robot) == 1 and floating is None:
                 self._hands_maps[robot] = self._spec_order_map(self.hand_refs[robot[0]])
+            elif len(robot) == 1:
+                spec = load_spec(self.hand_refs[robot[0]])
+                names = [*WRIST_JOINTS, *spec.actuated_joints]
+                self._hands_maps[robot] = JointMap.named_after(spec, names, names, arm=floating)
             else:  # laid out left first; the policy's slots keep their own order
                 arms = {
                     side: load_spec(self.hand_refs[i]) for side, i in zip(self.slot_sides, robot, strict=True)
                 }
-                body = [f"body_{i}" for i in range(self.wrist_dim // len(robot))]
+                body = (
+                    list(WRIST_JOINTS)
+                    if floating
+                    else [f"body_{i}" for i in range(self.wrist_dim // len(robot))]
+                )
                 names = arm_entries({side: arms[side] for side in SIDES}, body)
-                self._hands_maps[robot] = JointMap.named_after_arms(arms, names, names)
+                self._hands_maps[robot] = JointMap.named_after_arms(arms, names, names, arm=floating)
         return self._hands_maps[robot]
+
+    @property
+    def armed(self) -> bool:
+        """Whether the policy's body is the wrists' poses (its robots' maps name their arms)."""
+        return any(joint_map.armed for joint_map in self.maps.values())
 
     def robot_of(self, ids: torch.Tensor) -> tuple[int, ...]:
         """The one robot of a batch's (B, slots) embodiment ids: a postprocessor decodes one robot's actions
