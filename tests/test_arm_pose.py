@@ -16,10 +16,12 @@ from lerobot_opfa.arms.pose import (
     EndEffectorPose,
     FloatingWrist,
     floating_tool_pose,
+    load_body,
     matrix_rotation_vector,
     pose_matrix,
     pose_vector,
     rotation_vector_matrix,
+    wrist_in_tool,
 )
 from lerobot_opfa.envs.env import OpfaSimEnv
 from lerobot_opfa.envs.scene import WRIST_RANGE
@@ -85,10 +87,12 @@ def test_a_rotation_vector_comes_back_from_its_matrix_near_no_turn_and_a_half_tu
     )
 
 
-@pytest.mark.parametrize("body", [FloatingWrist(), EndEffectorPose()])
-def test_a_pose_body_gives_back_the_entries_its_pose_came_from(body):
-    """The simulator's floating wrist (within its range) and LeRobot's end-effector entries come back from
-    the wrist pose in closed form; the floating wrist's yaw continues the one it holds, not 2 pi off."""
+@pytest.mark.parametrize("name", ["floating", "end_effector"])
+def test_a_pose_body_gives_back_the_entries_its_pose_came_from(name):
+    """The simulator's floating wrist carrying an Inspire hand (within its range) and LeRobot's end-effector
+    entries come back from the wrist pose in closed form; the floating wrist's yaw continues the one it
+    holds, not 2 pi off."""
+    body = load_body(name, "inspire")
     generator = np.random.default_rng(3)
     entries = torch.from_numpy(generator.uniform(WRIST_RANGE[:, 0], WRIST_RANGE[:, 1], (64, 6)))
     if isinstance(body, EndEffectorPose):
@@ -124,3 +128,19 @@ def test_recorded_arm_joints_come_back_through_the_wrist_pose_within_a_millimetr
     q, missed = body.joints(far, home)
     assert missed.all() and q.isfinite().all()
     assert ((q >= body.chain.lower) & (q <= body.chain.upper)).all()
+
+
+def test_the_floating_wrists_pose_is_the_hands_wrist_frame_in_the_scene():
+    """`arm: floating` reads the simulator's entries as the pose of the hand's wrist (its base body), the
+    frame an arm's pose names, not the tool frame the entries drive."""
+    env = OpfaSimEnv("lift", "inspire", obs_type="state")
+    arm = env.scene.arms[None]
+    body = FloatingWrist(wrist_in_tool(env.hand_models[None]))
+    root = next(i for i in range(env.model.nbody) if env.model.body(i).name.startswith("hand/"))
+    for wrist in np.random.default_rng(4).uniform(WRIST_RANGE[:, 0], WRIST_RANGE[:, 1], (8, 6)):
+        env.data.qpos[arm.wrist_qpos] = wrist
+        mujoco.mj_kinematics(env.model, env.data)
+        pose = pose_matrix(body.wrist_pose(torch.from_numpy(wrist)))
+        assert np.abs(pose[:3, 3].numpy() - env.data.xpos[root]).max() < 1e-9
+        assert np.abs(pose[:3, :3].numpy() - env.data.xmat[root].reshape(3, 3)).max() < 1e-9
+    env.close()

@@ -58,7 +58,7 @@ def test_an_arms_joints_round_trip_through_the_wrist_pose_within_a_millimetre(tm
     joint_map, frames = layout.joint_maps[0], recorded(root)
     assert layout.wrist_names == [f"wrist.{name}" for name in POSE_NAMES]
     body, qs = joint_map.split(frames[ACTION], ACTION)
-    arm = joint_map.arm(ROBOTS[robot][0])
+    arm = joint_map.arm(joint_map.slots[0])
     (recorded_arm,) = joint_map.arm_joints(frames[ACTION], ACTION)
     assert torch.allclose(pose_matrix(body), arm.spec.wrist_pose(arm.chain, recorded_arm), atol=1e-9)
     arms, missed = joint_map.reach(body, frames[OBS_STATE])

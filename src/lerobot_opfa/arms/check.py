@@ -13,10 +13,10 @@ import numpy as np
 import torch
 
 from lerobot_opfa.arms.ik import ArmChain, solve
+from lerobot_opfa.arms.pose import wrist_in_tool
 from lerobot_opfa.arms.spec import ArmSpec, transform
 from lerobot_opfa.envs.regions import REGIONS
 from lerobot_opfa.envs.scene import TABLE_HALF
-from lerobot_opfa.envs.toolframe import tool_frame
 from lerobot_opfa.hands.model import HandModel
 
 FK_TOLERANCE = 1e-5
@@ -66,14 +66,6 @@ def fk_error_vs_mujoco(spec: ArmSpec, chain: ArmChain, q: torch.Tensor) -> tuple
     return position, rotation
 
 
-def tool_in_wrist(hand: HandModel) -> torch.Tensor:
-    """(4, 4): the hand's tool frame (grasp centre, approach axis +z) in its wrist (base) frame."""
-    rotation, translation = tool_frame(hand).hand_in_tool()
-    hand_in_tool = torch.eye(4, dtype=torch.float64)
-    hand_in_tool[:3, :3], hand_in_tool[:3, 3] = torch.as_tensor(rotation), torch.as_tensor(translation)
-    return torch.linalg.inv(hand_in_tool)
-
-
 @dataclass
 class Reach:
     regions: list[str]
@@ -88,7 +80,7 @@ def reach(spec: ArmSpec, chain: ArmChain, hand: HandModel) -> Reach:
     names = list(REGIONS)
     centres = [(np.mean(REGIONS[n].x), np.mean(REGIONS[n].y)) for n in names]
     down = torch.stack([transform([x, y, REACH_HEIGHT], [math.pi, 0.0, 0.0]) for x, y in centres])
-    wrist = down @ torch.linalg.inv(tool_in_wrist(hand))
+    wrist = down @ wrist_in_tool(hand)
     targets = spec.flange_target(wrist)
     home = torch.tensor(spec.home, dtype=torch.float64).expand(len(names), -1)
     q, error = solve(chain, targets, home, REACH_ITERATIONS)

@@ -7,7 +7,7 @@ LeRobot's end-effector entries (a rotation vector)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 from torch import Tensor
@@ -15,6 +15,9 @@ from torch import Tensor
 from lerobot_opfa.arms.ik import ArmChain, pose_error, solve_chunk
 from lerobot_opfa.arms.spec import ArmSpec, load_arm
 from lerobot_opfa.envs.scene import WRIST_JOINTS
+from lerobot_opfa.envs.toolframe import tool_frame
+from lerobot_opfa.hands.model import HandModel
+from lerobot_opfa.hands.registry import load_hand
 
 POSE_NAMES = ("x", "y", "z", "r11", "r21", "r31", "r12", "r22", "r32")
 """The wrist pose's entries: position, then the rotation matrix's first column, then its second."""
@@ -148,12 +151,23 @@ def nearest_turn(angle: Tensor, reference: Tensor) -> Tensor:
     return reference + torch.remainder(angle - reference + torch.pi, 2 * torch.pi) - torch.pi
 
 
+def wrist_in_tool(hand: HandModel) -> Tensor:
+    """(4, 4): the hand's wrist (base) frame in its tool frame (grasp centre, approach axis +z), where the
+    simulator's floating wrist carries it."""
+    rotation, translation = tool_frame(hand).hand_in_tool()
+    out = torch.eye(4, dtype=torch.float64)
+    out[:3, :3], out[:3, 3] = torch.as_tensor(rotation), torch.as_tensor(translation)
+    return out
+
+
 @dataclass
 class FloatingWrist:
-    """The simulator's floating wrist as a body: its six entries (`WRIST_JOINTS`: x, y, z, yaw, pitch, roll)
-    <-> its tool pose (`floating_tool_pose`), both ways in closed form, so that a floating hand's demos share
-    the wrist-pose convention of hands on arms. Pitch within +-pi/2, as the simulator's range keeps it."""
+    """The simulator's floating wrist as a body: its six entries (`WRIST_JOINTS`: x, y, z, yaw, pitch, roll:
+    the tool frame, `floating_tool_pose`) <-> the pose of the hand's wrist it carries (`wrist_in_tool`), both
+    ways in closed form, so that a floating hand's demos share the convention of hands on arms. Pitch within
+    +-pi/2, as the simulator's range keeps it."""
 
+    wrist_in_tool: Tensor = field(default_factory=lambda: torch.eye(4, dtype=torch.float64))
     name: str = "floating"
     joint_names: tuple[str, ...] = WRIST_JOINTS
     home: tuple[float, ...] = (0.0, 0.0, 0.3, 0.0, 0.0, 0.0)
@@ -161,10 +175,10 @@ class FloatingWrist:
     upper: Tensor = torch.full((6,), torch.inf, dtype=torch.float64)
 
     def wrist_pose(self, q: Tensor) -> Tensor:
-        return pose_vector(floating_tool_pose(q.to(torch.float64))).to(q.dtype)
+        return pose_vector(floating_tool_pose(q.to(torch.float64)) @ self.wrist_in_tool).to(q.dtype)
 
     def joints(self, poses: Tensor, current: Tensor) -> tuple[Tensor, Tensor]:
-        pose = pose_matrix(poses.to(torch.float64))
+        pose = pose_matrix(poses.to(torch.float64)) @ torch.linalg.inv(self.wrist_in_tool)
         half_turn = rotation_about(0, torch.full(poses.shape[:-1], torch.pi, dtype=torch.float64))
         r = pose[..., :3, :3] @ half_turn  # Rz(yaw) Ry(pitch) Rx(roll)
         yaw = torch.atan2(r[..., 1, 0], r[..., 0, 0])
@@ -199,10 +213,13 @@ class EndEffectorPose:
         return q.to(poses.dtype), torch.zeros(poses.shape[:-1], dtype=torch.bool)
 
 
-POSE_BODIES = {body.name: body for body in (FloatingWrist(), EndEffectorPose())}
+POSE_BODIES = (FloatingWrist.name, EndEffectorPose.name)
 """The bodies a joint map's `arm` may name that are poses already, not an arm's joints."""
 
 
-def load_body(arm: str) -> ArmBody | FloatingWrist | EndEffectorPose:
-    """The body a joint map's `arm` names: a pose body (`POSE_BODIES`), else an arm (`arms.spec.load_arm`)."""
-    return POSE_BODIES[arm] if arm in POSE_BODIES else ArmBody.load(arm)
+def load_body(arm: str, hand: str) -> ArmBody | FloatingWrist | EndEffectorPose:
+    """The body a joint map's `arm` names for its slot's `hand` (what `load_hand` takes): a pose body
+    (`POSE_BODIES`), else an arm (`arms.spec.load_arm`)."""
+    if arm == FloatingWrist.name:
+        return FloatingWrist(wrist_in_tool(load_hand(hand)))
+    return EndEffectorPose() if arm == EndEffectorPose.name else ArmBody.load(arm)

@@ -211,7 +211,7 @@ class JointMap:
     """The robot's entries the map is bound to (`bind`); empty for a map as read from its file."""
     _columns: dict = field(default_factory=dict, compare=False, repr=False)
     _arms: dict = field(default_factory=dict, compare=False, repr=False)
-    """Arm reference -> its `arms.pose.ArmBody`, loaded on first use."""
+    """(arm reference, hand reference) -> its body (`arms.pose.load_body`), loaded on first use."""
 
     # --- reading and writing ----------------------------------------------------------------------------
     @classmethod
@@ -387,7 +387,7 @@ class JointMap:
         if slot.arm is None:
             return {}
         where = f"{self.source}" + (f" ({slot.side} arm)" if slot.side else "")
-        joints = self.arm(slot.arm).joint_names
+        joints = self.arm(slot).joint_names
         given = dict(slot.arm_joints)
         if not given:
             for joint in joints:
@@ -436,18 +436,21 @@ class JointMap:
         """Whether the body entries are arm joints, read as the wrists' poses."""
         return self.slots[0].arm is not None
 
-    def arm(self, ref: str):
-        """The body `ref` names (`arms.pose.load_body`: an arm, or a pose body such as the simulator's
+    def arm(self, slot: HandSlot):
+        """The body of `slot`'s arm (`arms.pose.load_body`: an arm, or a pose body such as the simulator's
         floating wrist), loaded once per map."""
         from lerobot_opfa.arms.pose import POSE_BODIES, load_body  # pytorch-kinematics only for arms
 
-        if ref not in self._arms:
+        key = (slot.arm, slot.hand)
+        if key not in self._arms:
             try:
-                self._arms[ref] = load_body(ref)
+                self._arms[key] = load_body(slot.arm, slot.hand)
             except ValueError as err:
                 poses = ", ".join(POSE_BODIES)
-                raise JointMapError(f"{self.source}: arm '{ref}': {err} (or a pose body: {poses})") from None
-        return self._arms[ref]
+                raise JointMapError(
+                    f"{self.source}: arm '{slot.arm}': {err} (or a pose body: {poses})"
+                ) from None
+        return self._arms[key]
 
     def _bind_slot(self, slot: HandSlot, state: list[str], action: list[str]) -> None:
         spec = slot.spec
@@ -581,7 +584,7 @@ class JointMap:
         spec's radians are declared: the scale that fits is named)."""
         arms = self.arm_joints(x.detach().to("cpu", torch.float64), key)
         for slot, q in zip(self.slots, arms, strict=True):
-            arm = self.arm(slot.arm)
+            arm = self.arm(slot)
             q = q.reshape(-1, q.shape[-1])
             for i, joint in enumerate(arm.joint_names):
                 low, high = float(arm.lower[i]), float(arm.upper[i])
@@ -625,7 +628,7 @@ class JointMap:
             arms = []
             for slot in self.slots if self.armed else ():
                 by_joint = {j.joint: (e, j) for e, j in slot.arm_joints.items()}
-                order = [by_joint[j] for j in self.arm(slot.arm).joint_names]
+                order = [by_joint[j] for j in self.arm(slot).joint_names]
                 arms.append((
                     [names.index(e) for e, _ in order],
                     torch.tensor([j.scale for _, j in order], dtype=torch.float64),
@@ -652,7 +655,7 @@ class JointMap:
         if not self.armed:
             return x[..., body], qs
         poses = [
-            self.arm(slot.arm).wrist_pose(q.reshape(-1, q.shape[-1])).reshape(*q.shape[:-1], -1)
+            self.arm(slot).wrist_pose(q.reshape(-1, q.shape[-1])).reshape(*q.shape[:-1], -1)
             for slot, q in zip(self.slots, self.arm_joints(x, key), strict=True)
         ]
         return torch.cat(poses, dim=-1).to(x.dtype), qs
@@ -670,7 +673,7 @@ class JointMap:
         seeds = None if state is None else self.arm_joints(state.reshape(len(rows), -1), OBS_STATE)
         out, missed = [], 0
         for i, slot in enumerate(self.slots):
-            arm = self.arm(slot.arm)
+            arm = self.arm(slot)
             home = torch.tensor(arm.home, dtype=torch.float64)
             answers = []
             for b, poses in enumerate(rows[..., 9 * i : 9 * (i + 1)]):
