@@ -30,6 +30,11 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         help="joints: absolute wrist pose and hand joints; ee_delta (a gripper): tool steps and a 0..1 grasp "
         "command, state with wrist velocities and a -1..1 gripper reading",
     )  # fmt: skip
+    demos.add_argument(
+        "--arm", help="mount the hand on this arm (`lerobot-opfa arms list`, or an arm spec path): the "
+        "dataset records the arm's joints, as its model names them; default: the floating wrist",
+    )  # fmt: skip
+    demos.add_argument("--fps", type=positive_int, default=20, help="the robot's control and recording rate")
     demos.set_defaults(func=_demos)
 
     show = sim.add_parser(
@@ -61,6 +66,7 @@ def _demos(args: argparse.Namespace) -> int:
     meta = record_demos(
         args.task, args.hand, args.episodes, args.output_dir, args.regions, args.seed,
         args.repo_id, args.n_points, args.pointcloud_source, args.depth_cameras, args.overwrite, args.control,
+        args.arm, args.fps,
     )  # fmt: skip
     print(
         f"wrote {args.output_dir}: {meta.total_episodes} episodes, {meta.total_frames} frames of "

@@ -12,10 +12,11 @@ from lerobot.processor import EnvTransition, PolicyProcessorPipeline, ProcessorS
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGES, OBS_STATE
 
 from lerobot_opfa import checkpoint_files
+from lerobot_opfa.arms.spec import load_arm
 from lerobot_opfa.checkpoint_files import POSTPROCESSOR, PREPROCESSOR
 from lerobot_opfa.datasets.joint_map import HANDS_SEPARATOR
 from lerobot_opfa.envs.control import EE_ACTION_NAMES, EE_STATE_NAMES, check_control
-from lerobot_opfa.envs.env import OBS_TYPES, POINTCLOUD_SOURCES, check_choice, parse_cameras
+from lerobot_opfa.envs.env import OBS_TYPES, POINTCLOUD_SOURCES, check_arm, check_choice, parse_cameras
 from lerobot_opfa.envs.regions import parse_regions
 from lerobot_opfa.envs.scene import WRIST_JOINTS
 from lerobot_opfa.envs.tasks import ENV_STATE_DIM, TASKS, check_task, task_hands
@@ -82,6 +83,21 @@ def check_control_against(control: str, policy_path: str | None) -> None:
         )
 
 
+def check_arm_against(state_names: list[str] | None, policy_path: str | None) -> None:
+    """An env on an arm whose entries are not those of a robot the checkpoint at `policy_path` was trained
+    on is refused: the policy would read its joints as another robot's (the floating wrist's six entries,
+    another arm's) without a word."""
+    trained = trained_state_names(policy_path)
+    if state_names is None or not trained or state_names in trained:
+        return
+    raise ValueError(
+        f"the policy at {policy_path} was trained on robots of entries "
+        f"{'; '.join(', '.join(names[:3]) + ', ...' for names in trained)}, none of them this arm's "
+        f"({', '.join(state_names[:3])}, ...): record demos on this arm (`sim demos --arm`) and train on "
+        "them, or leave --env.arm out"
+    )
+
+
 @EnvConfig.register_subclass("opfa")
 @dataclass
 class OpfaEnvConfig(EnvConfig):
@@ -106,6 +122,10 @@ class OpfaEnvConfig(EnvConfig):
     """`joints` (absolute wrist pose and hand joints) or `ee_delta` (a gripper: tool steps and a grasp
     command; `envs.control`). Under `ee_delta` the env is a robot of its own entries, read through the
     policy's joint map."""
+    arm: str | None = None
+    """The arm the hand is on (`lerobot-opfa arms list`, or an arm spec path; one-hand tasks): state and
+    action are the arm's joints, then the hand's, as `sim demos --arm` records them. None: the floating
+    wrist."""
     policy_action_width: int | None = None
     """The action width of a policy whose postprocessor gives this env its joints, when it differs (a stock
     policy in GaLR space: body + z). LeRobot's lerobot-eval builds even a pretrained policy's action
@@ -139,8 +159,13 @@ class OpfaEnvConfig(EnvConfig):
             for spec in specs:
                 check_control(self.control, spec.name, len(spec.joints))
             check_control_against(self.control, policy_path)
+        with flag("env.arm"):
+            check_arm(self.arm, self.task, [spec.name for spec in specs], self.control)
+            check_arm_against(self.state_names, policy_path)
         if self.control == "ee_delta":
             state, action = len(specs) * len(EE_STATE_NAMES), len(specs) * len(EE_ACTION_NAMES)
+        elif self.arm is not None:
+            state = action = len(self.state_names)
         else:
             state = action = sum(len(WRIST_JOINTS) + len(spec.joints) for spec in specs)
         if self.policy_action_width is not None and self.policy_action_width < 1:
@@ -176,8 +201,21 @@ class OpfaEnvConfig(EnvConfig):
         the right embodiment even when two of its hands have the same joint count. Under `ee_delta` its
         entries are others: it says no type, and its frames go through the joint map the policy was trained
         with."""
-        steps = [] if self.control == "ee_delta" else [RobotTypeStep(self.hand_name)]
+        steps = [] if self.control == "ee_delta" else [RobotTypeStep(self.robot_type)]
         return PolicyProcessorPipeline(steps=steps), PolicyProcessorPipeline(steps=[])
+
+    @property
+    def robot_type(self) -> str:
+        """The env's `robot_type`, as its demos record it (`OpfaSimEnv.robot_type`): its hands, on an arm
+        `<arm>_<hand>`."""
+        return self.hand_name if self.arm is None else f"{load_arm(self.arm).name}_{self.hand_name}"
+
+    @property
+    def state_names(self) -> list[str] | None:
+        """The env's state entries on an arm (the arm's joints, then the hand's); None without one."""
+        if self.arm is None:
+            return None
+        return [*load_arm(self.arm).joints, *load_spec(self.hand).actuated_joints]
 
     @property
     def hand_name(self) -> str:
@@ -210,6 +248,7 @@ class OpfaEnvConfig(EnvConfig):
             "render_height": self.render_height,
             "max_episode_steps": steps,
             "control": self.control,
+            "arm": self.arm,
         }
 
 

@@ -101,6 +101,8 @@ def record_demos(
     depth_cameras: str = "front",
     overwrite: bool = False,
     control: str = "joints",
+    arm: str | None = None,
+    fps: int = 20,
 ) -> LeRobotDatasetMetadata:
     """Record `episodes` successful expert episodes, cycling through the regions, into `output_dir`, which
     appears whole or not at all (and only with `overwrite` replaces an existing folder). No successful
@@ -108,14 +110,14 @@ def record_demos(
     region_names = parse_regions(regions)
     env = OpfaSimEnv(
         task, hand, region_names, obs_type="pointcloud_state", pointcloud_source=pointcloud_source,
-        n_points=n_points, depth_cameras=depth_cameras, control=control,
+        n_points=n_points, depth_cameras=depth_cameras, control=control, arm=arm, fps=fps,
     )  # fmt: skip
     try:
         create = dict(
             repo_id=repo_id or _repo_id(env),
             fps=env.metadata["render_fps"],
             features=dataset_features(env),
-            robot_type=env.hand_name,
+            robot_type=env.robot_type,
             use_videos=False,
         )
         with new_dataset(output_dir, overwrite, **create) as dataset:
@@ -138,7 +140,7 @@ def failure_reason(env: OpfaSimEnv, env_states: np.ndarray) -> str:
 
 
 def _repo_id(env: OpfaSimEnv) -> str:
-    return f"local/opfa_{env.task.name}_{env.hand_name.replace(HANDS_SEPARATOR, '_')}"
+    return f"local/opfa_{env.task.name}_{env.robot_type.replace(HANDS_SEPARATOR, '_')}"
 
 
 def _record(env: OpfaSimEnv, episodes: int, dataset, region_names: list[str], seed: int) -> None:
@@ -176,6 +178,7 @@ def _record(env: OpfaSimEnv, episodes: int, dataset, region_names: list[str], se
     meta = {
         "task": task,
         "hand": env.hand_name,
+        "arm": None if env.arm_joints is None else env.arm_joints.ref,
         "regions": region_names,
         "seed": seed,
         "attempts": attempts,
@@ -187,8 +190,8 @@ def _record(env: OpfaSimEnv, episodes: int, dataset, region_names: list[str], se
     specs = [hand.spec for hand in env.hand_models.values()]
     users = {spec.name: hand_entry(spec) for spec in specs if hand_ref(spec) != spec.name}
     record = {"hands": users} if users else {}  # a user's hand: later commands find it from the dataset
-    if len(env.hand_models) > 1:
-        record["joint_map"] = env.joint_map.to_dict()  # which entries are which side's hand
+    if len(env.hand_models) > 1 or env.arm_joints is not None:
+        record["joint_map"] = env.joint_map.to_dict()  # which entries are which side's hand, or the arm's
     if record:
         (Path(root) / OPFA_META_FILE).write_text(json.dumps(record, indent=2))
 

@@ -11,7 +11,13 @@ import mujoco
 import numpy as np
 
 from lerobot_opfa.datasets.joint_map import HANDS_SEPARATOR, SIDES, JointMap, sided
-from lerobot_opfa.envs.control import EE_ACTION_NAMES, EE_STATE_NAMES, EndEffectorDeltas, check_control
+from lerobot_opfa.envs.control import (
+    EE_ACTION_NAMES,
+    EE_STATE_NAMES,
+    ArmJoints,
+    EndEffectorDeltas,
+    check_control,
+)
 from lerobot_opfa.envs.observation import ColourCameras, SceneViews
 from lerobot_opfa.envs.regions import REGIONS, parse_regions
 from lerobot_opfa.envs.scene import (
@@ -41,6 +47,16 @@ def check_choice(kind: str, value: str, valid: tuple[str, ...] | list[str]) -> s
     if value not in valid:
         raise ValueError(f"unknown {kind} '{value}'; valid {kind}s: {', '.join(valid)}")
     return value
+
+
+def check_arm(arm: str | None, task: str, hands: list[str], control: str) -> None:
+    """An arm carries the hand of a one-hand task, under `joints` control."""
+    if arm is None:
+        return
+    if len(hands) != 1:
+        raise ValueError(f"an arm carries one hand; {task} takes {len(hands)}: leave the arm out")
+    if control != "joints":
+        raise ValueError(f"an arm's robot acts in its joints: leave control {control} out, or the arm")
 
 
 def parse_cameras(cameras: str | list[str]) -> list[str]:
@@ -110,7 +126,9 @@ class OpfaSimEnv(gym.Env):
     task's object state (`tasks.ENV_STATE_DIM`); `pixels` (obs types with `rgb`) holds each of
     `rgb_cameras` as `<name>_rgb`, (camera_height, camera_width, 3) uint8, as the rig records them.
     With `control="ee_delta"` (a gripper on each arm), action and `agent_pos` hold other entries
-    (`envs.control`), arm by arm.
+    (`envs.control`), arm by arm. With `arm` (a one-hand task), the hand is on that arm (`arms.spec`):
+    action and `agent_pos` hold the arm's joints, as its model names them, then the hand's
+    (`control.ArmJoints`).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
@@ -132,6 +150,7 @@ class OpfaSimEnv(gym.Env):
         render_width: int = 320,
         render_height: int = 240,
         control: str = "joints",
+        arm: str | None = None,
     ) -> None:
         self.task = make_task(task)
         names = task_hands(task, hand)
@@ -139,7 +158,9 @@ class OpfaSimEnv(gym.Env):
         self.hand_models: dict[str | None, HandModel] = dict(zip(sides, map(load_hand, names), strict=True))
         for model in self.hand_models.values():
             check_control(control, model.name, model.dof)
+        check_arm(arm, task, names, control)
         self.homes = arm_homes(sides)
+        self.arm_joints = None if arm is None else ArmJoints(arm, self.hand_models[None], self.homes[None])
         self.ee = (
             {side: EndEffectorDeltas(hand, self.homes[side]) for side, hand in self.hand_models.items()}
             if control == "ee_delta"
@@ -169,7 +190,9 @@ class OpfaSimEnv(gym.Env):
         high = np.concatenate([[*WRIST_RANGE[:, 1], *as_array(h.upper)] for h in self.hand_models.values()])
         self.target_space = gym.spaces.Box(low.astype(np.float32), high.astype(np.float32), dtype=np.float32)
         """The wrists' and the hands' targets (what `joints` control takes)."""
-        if self.ee is None:
+        if self.arm_joints is not None:
+            self.action_space = self.arm_joints.action_space
+        elif self.ee is None:
             self.action_space = self.target_space
         else:
             spaces = [ee.action_space for ee in self.ee.values()]
@@ -196,6 +219,8 @@ class OpfaSimEnv(gym.Env):
 
     @property
     def state_names(self) -> list[str]:
+        if self.arm_joints is not None:
+            return [*self.arm_joints.names, *self.hand_models[None].joint_names]
         per_arm = {
             side: EE_STATE_NAMES if self.ee is not None else (*WRIST_JOINTS, *hand.joint_names)
             for side, hand in self.hand_models.items()
@@ -217,8 +242,17 @@ class OpfaSimEnv(gym.Env):
         names = self.state_names
         specs = {side: hand.spec for side, hand in self.hand_models.items()}
         if None in specs:
-            return JointMap.named_after(specs[None], names, names)
+            arm = None if self.arm_joints is None else self.arm_joints.ref
+            return JointMap.named_after(specs[None], names, names, arm=arm)
         return JointMap.named_after_arms(specs, names, names)
+
+    @property
+    def robot_type(self) -> str:
+        """What its datasets record as `robot_type`: the robot by its hands (`hand_name`), on an arm
+        `<arm>_<hand>` (`ur5_inspire`)."""
+        if self.arm_joints is None:
+            return self.hand_name
+        return f"{self.arm_joints.body.spec.name}_{self.hand_name}"
 
     @property
     def hand_name(self) -> str:
@@ -247,6 +281,8 @@ class OpfaSimEnv(gym.Env):
     def command(self, targets: np.ndarray) -> np.ndarray:
         """The action of this env's control that takes the wrists and hands to `targets` (what the
         scripted experts give)."""
+        if self.arm_joints is not None:
+            return self.arm_joints.command(targets)
         if self.ee is None:
             return targets
         cuts = np.cumsum([len(WRIST_JOINTS) + hand.dof for hand in self.hand_models.values()])[:-1]
@@ -257,7 +293,10 @@ class OpfaSimEnv(gym.Env):
     def observation(self) -> dict[str, np.ndarray]:
         qpos = self.data.qpos
         arms = self.scene.arms
-        if self.ee is None:
+        if self.arm_joints is not None:
+            arm = arms[None]
+            state = [self.arm_joints.state(qpos[arm.wrist_qpos], qpos[arm.hand_qpos])]
+        elif self.ee is None:
             state = [qpos[np.r_[arm.wrist_qpos, arm.hand_qpos]] for arm in arms.values()]
         else:
             state = [
@@ -293,6 +332,8 @@ class OpfaSimEnv(gym.Env):
         mujoco.mj_step(self.model, self.data, SETTLE_STEPS)
         for ee in (self.ee or {}).values():
             ee.reset()
+        if self.arm_joints is not None:
+            self.arm_joints.reset()
         return self.observation(), {"is_success": False, "region": self.region}
 
     def step(self, action: np.ndarray):
@@ -300,6 +341,9 @@ class OpfaSimEnv(gym.Env):
         if self.ee is not None:
             steps = np.split(action, len(self.ee))
             targets = np.concatenate([ee.targets(a) for ee, a in zip(self.ee.values(), steps, strict=True)])
+            action = np.clip(targets, self.target_space.low, self.target_space.high)
+        if self.arm_joints is not None:
+            targets = self.arm_joints.targets(action, self.data.qpos[self.scene.arms[None].wrist_qpos])
             action = np.clip(targets, self.target_space.low, self.target_space.high)
         self.data.ctrl[self.ctrl_index] = action
         mujoco.mj_step(self.model, self.data, self.n_substeps)
