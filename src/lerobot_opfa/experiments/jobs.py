@@ -37,6 +37,10 @@ EVAL_SEED = 100_000
 """Evaluation episodes are seeded from here, far from the demonstrations' seeds (0 and up)."""
 
 
+DEFAULT_FPS = 20
+"""The simulator's default rate (`OpfaSimEnv`)."""
+
+
 @dataclass(frozen=True)
 class Demos:
     task: str
@@ -44,10 +48,14 @@ class Demos:
     regions: tuple[str, ...]
     episodes: int
     seed: int = 0
+    arm: str | None = None
+    """The arm the hand is on (None: the floating wrist)."""
+    fps: int = DEFAULT_FPS
 
     @property
     def name(self) -> str:
-        return f"{self.task}-{self.hand}-{regions_tag(self.regions)}-{self.episodes}ep-s{self.seed}"
+        robot = robot_tag(self.hand, self.arm, self.fps)
+        return f"{self.task}-{robot}-{regions_tag(self.regions)}-{self.episodes}ep-s{self.seed}"
 
     @property
     def covered(self) -> tuple[str, ...]:
@@ -79,10 +87,18 @@ class Evaluation:
     task: str
     hand: str
     regions: tuple[str, ...]
+    arm: str | None = None
+    fps: int = DEFAULT_FPS
 
     @property
     def name(self) -> str:
-        return f"{self.training.name}-{self.task}-{self.hand}-{regions_tag(self.regions)}"
+        robot = robot_tag(self.hand, self.arm, self.fps)
+        return f"{self.training.name}-{self.task}-{robot}-{regions_tag(self.regions)}"
+
+
+def robot_tag(hand: str, arm: str | None, fps: int) -> str:
+    """A robot as part of a file name: its hand, then its arm and rate where they are not the default."""
+    return "-".join([hand, *([arm] if arm else []), *([f"{fps}fps"] if fps != DEFAULT_FPS else [])])
 
 
 def regions_tag(regions: tuple[str, ...]) -> str:
@@ -138,7 +154,8 @@ class Workspace:
 
             record_demos(
                 spec.task, spec.hand, spec.episodes, out, ",".join(spec.regions), spec.seed,
-                f"local/{spec.name}", self.scale.n_points, "geometry", overwrite=True,
+                f"local/{spec.name}", self.scale.n_points, "geometry", overwrite=True, arm=spec.arm,
+                fps=spec.fps,
             )  # fmt: skip
         return out
 
@@ -211,6 +228,8 @@ class Workspace:
             "--env.obs_type=pointcloud",
             "--env.pointcloud_source=geometry",
             f"--env.n_points={self.scale.n_points}",
+            f"--env.fps={evaluation.fps}",
+            *([f"--env.arm={evaluation.arm}"] if evaluation.arm else []),
             f"--eval.n_episodes={self.scale.eval_episodes}",
             f"--eval.batch_size={min(self.scale.eval_batch_size, self.scale.eval_episodes)}",
             "--eval.use_async_envs=false",
@@ -227,6 +246,8 @@ class Workspace:
             "condition": evaluation.training.condition,
             "task": evaluation.task,
             "hand": evaluation.hand,
+            "arm": evaluation.arm,
+            "fps": evaluation.fps,
             "regions": list(evaluation.regions),
             "training": evaluation.training.name,
             "successes": successes,
