@@ -94,8 +94,8 @@ def record(out: Path, row: dict, lock: Path) -> list[dict]:
     two runs of this benchmark may finish cells at once."""
     key = ("robot", "region", "condition")
     out.parent.mkdir(parents=True, exist_ok=True)
-    with open(lock, "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
+    with open(lock, "w") as held:
+        fcntl.flock(held, fcntl.LOCK_EX)
         runs = json.loads(out.read_text())["runs"] if out.exists() else []
         runs = [r for r in runs if any(r[k] != row[k] for k in key)] + [row]
         order = {c: i for i, c in enumerate(CONDITIONS)}
