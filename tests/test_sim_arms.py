@@ -96,3 +96,53 @@ def test_a_policy_trained_on_arm_demos_runs_on_that_arm_in_lerobot_eval_and_is_r
         run_lerobot_here("lerobot_eval", [*evaluate, "--env.arm=panda"], monkeypatch)
     refused = capsys.readouterr().err.strip().splitlines()[-1]
     assert refused.startswith("error: `env.arm`: the policy at") and "none of them this arm's" in refused
+
+
+def test_the_rig_on_an_arm_records_with_lerobot_record_and_deploys_with_lerobot_rollout_on_that_arm_only(
+    tmp_path, monkeypatch
+):
+    """`--robot.arm=ur5` on the `opfa_sim` rig: `lerobot-record` with the expert writes the arm's joints as
+    LeRobot's robots name them (`<joint>.pos`); a map naming the arm trains on them (the wrist pose) and
+    `lerobot-rollout` drives the rig's arm; a rig on another arm is refused in one line naming both."""
+    from test_rig import lerobot, rig_flags
+
+    arm = ["--robot.arm=ur5", "--robot.task=lift"]
+    done = lerobot(
+        "lerobot_record", *rig_flags(tmp_path / "calibration", "umi", *arm, "--robot.episode_time_s=1"),
+        "--teleop.type=opfa_expert", "--dataset.repo_id=local/rig_ur5", f"--dataset.root={tmp_path / 'rig'}",
+        "--dataset.num_episodes=2", "--dataset.episode_time_s=1", "--dataset.reset_time_s=0",
+        "--dataset.fps=20", "--dataset.single_task=lift", "--dataset.push_to_hub=false",
+        "--display_data=false", "--play_sounds=false",
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-3000:]
+    meta = LeRobotDatasetMetadata("local/rig_ur5", root=tmp_path / "rig")
+    assert meta.robot_type == "ur5_umi"
+    assert meta.features[OBS_STATE]["names"] == [
+        *(f"{j}.pos" for j in load_arm("ur5").joints),
+        "left_jaw_joint.pos",
+    ]
+    joint_map = tmp_path / "ur5_umi.yaml"
+    joint_map.write_text("hand: umi\njoints: {left_jaw_joint.pos: left_jaw_joint}\narm: ur5\n")
+    calibration = tmp_path / "calibration" / "opfa_sim_cameras.yaml"
+    policy = {"type": "opfa", "action_space": "raw", "device": "cpu", "push_to_hub": "false", "horizon": 8,
+              "down_dims": "[16,32]", "n_action_steps": 4, "pointcloud_widths": "[8,16]",
+              "pointcloud_feature_dim": 8, "cloud_points": 64, "cameras": calibration,
+              "joint_map": joint_map}  # fmt: skip
+    run_lerobot_here("lerobot_train", [
+        *(f"--policy.{k}={v}" for k, v in policy.items()), "--dataset.repo_id=local/rig_ur5",
+        f"--dataset.root={tmp_path / 'rig'}", "--steps=2", "--batch_size=2", "--num_workers=0",
+        "--save_freq=2", f"--output_dir={tmp_path / 'train'}", "--wandb.enable=false",
+    ], monkeypatch)  # fmt: skip
+    checkpoint = tmp_path / "train" / "checkpoints" / "last" / "pretrained_model"
+    flags = [f"--policy.path={checkpoint}", "--fps=20", "--play_sounds=false",
+             "--return_to_initial_position=false", "--strategy.type=base", "--duration=2"]  # fmt: skip
+    deploy = tmp_path / "deploy"
+    done = lerobot("lerobot_rollout", *rig_flags(deploy, "umi", *arm, "--robot.auto_reset=true"), *flags)
+    assert done.returncode == 0, done.stderr[-3000:]
+    log = [json.loads(line) for line in (deploy / "opfa_sim_episodes.jsonl").open()]
+    assert sum(o["steps"] for o in log) >= 10, log  # the policy drove the rig's arm
+    panda = ["--robot.arm=panda", "--robot.task=lift"]
+    done = lerobot("lerobot_rollout", *rig_flags(tmp_path / "panda", "umi", *panda), *flags)
+    last = done.stderr.strip().splitlines()[-1]
+    assert done.returncode != 0 and "robot_type 'panda_umi' names arm(s) panda" in last, done.stderr[-3000:]
+    assert "on ur5" in last and "Traceback" not in done.stderr

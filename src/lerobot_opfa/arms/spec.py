@@ -164,6 +164,11 @@ def _frame(path: Path, name: str, raw) -> torch.Tensor:
     return transform(values["xyz"], values["rpy"])
 
 
+def arm_name(arm: str | Path) -> str:
+    """The name of the arm `arm` references (a built-in's name, or a spec path: the spec's `name`)."""
+    return str(arm) if str(arm) in builtin_arms() else load_arm(arm).name
+
+
 def load_arm(arm: str | Path) -> ArmSpec:
     """A built-in arm by name, or an arm spec YAML by path."""
     return ArmSpec.load(builtin_or_path("arm", arm, builtin_arms()))

@@ -39,6 +39,8 @@ from lerobot.processor.relative_action_processor import (
 )
 from lerobot.utils.constants import ACTION, OBS_STATE
 
+from lerobot_opfa.arms.pose import POSE_BODIES
+from lerobot_opfa.arms.spec import arm_name, builtin_arms
 from lerobot_opfa.datasets.joint_map import HANDS_SEPARATOR, SIDES, JointMap, arm_entries, hands_named_in
 from lerobot_opfa.envs.scene import WRIST_JOINTS
 from lerobot_opfa.features import OBS_EMBODIMENT, OBS_POINTCLOUD, ROBOT_TYPE, frame_embodiments
@@ -471,7 +473,28 @@ class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
                 )
             robot = tuple(self.robots[0]) if len(self.robots) == 1 else typed[0]
         self._check_robot_type(robot, robot_type)
+        self._check_arm(robot, robot_type)
         return robot
+
+    def _check_arm(self, robot: tuple[int, ...], robot_type: str | None) -> None:
+        """A deployed robot whose `robot_type` names another built-in arm than the trained robot's (or an arm
+        where it had none) is refused: its arm's joints would be read as the other's, as many of them or
+        not (`accept_robot_type` overrides)."""
+        if not robot_type or robot_type == self.accept_robot_type:
+            return
+        named = set(hands_named_in(robot_type, builtin_arms()))
+        trained = {
+            arm_name(slot.arm) for slot in self.maps[robot].slots if slot.arm not in (None, *POSE_BODIES)
+        }
+        if named and named != trained:
+            mine = f"'{self.robot_name(robot)}' on " + (", ".join(sorted(trained)) or "no arm it models")
+            raise ValueError(
+                f"this policy drives {mine}, but the robot's robot_type '{robot_type}' names arm(s) "
+                f"{', '.join(sorted(named))}: its joints would be read as another arm's; deploy a policy "
+                f"trained on this arm, or if the robot is the trained one, say so: `lerobot-opfa policy "
+                f"for-robot --policy CHECKPOINT --hand {self.robot_name(robot)} --robot-type {robot_type} "
+                "--output OUT`"
+            )
 
     def pinned_robot(self, name: str) -> tuple[int, ...]:
         """The trained robot `name` names (`inspire`, or `inspire+xhand`, left first)."""

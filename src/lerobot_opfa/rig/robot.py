@@ -33,7 +33,8 @@ import yaml
 from lerobot.robots.config import RobotConfig
 from lerobot.robots.robot import Robot
 
-from lerobot_opfa.envs.env import OpfaSimEnv, parse_cameras
+from lerobot_opfa.arms.spec import load_arm
+from lerobot_opfa.envs.env import OpfaSimEnv, check_arm, parse_cameras
 from lerobot_opfa.envs.observation import ColourCameras, DepthPointCloud
 from lerobot_opfa.envs.regions import parse_regions
 from lerobot_opfa.envs.tasks import check_task, task_hands
@@ -57,6 +58,7 @@ episode's step starts that late, and saving an episode takes longer."""
 class OpfaSimRobotConfig(RobotConfig):
     id: str | None = "opfa_sim"
     hand: str = "umi"  # a built-in hand name or a spec.yaml path; a two-hand task's: left+right
+    arm: str | None = None  # the arm the hand is on (`lerobot-opfa arms list`); None: the floating wrist
     task: str = "lift"
     regions: str = "all"
     seed: int = 0
@@ -78,8 +80,11 @@ class OpfaSimRobotConfig(RobotConfig):
         with flag("robot.task"):
             check_task(self.task)
         with flag("robot.hand"):
-            for hand in task_hands(self.task, self.hand):
-                load_spec(hand)
+            hands = [load_spec(hand).name for hand in task_hands(self.task, self.hand)]
+        with flag("robot.arm"):
+            check_arm(self.arm, self.task, hands, "joints")
+            if self.arm is not None:
+                load_arm(self.arm)
         with flag("robot.regions"):
             parse_regions(self.regions)
         with flag("robot.depth_cameras"):
@@ -98,9 +103,11 @@ class OpfaSimRobot(Robot):
     def __init__(self, config: OpfaSimRobotConfig):
         super().__init__(config)
         self.config = config
-        self.env = OpfaSimEnv(config.task, config.hand, config.regions, obs_type="state", fps=config.fps)
-        # what LeRobot records as the dataset's robot_type: the hand(s), which this package reads it as
-        self.name = self.robot_type = self.env.hand_name
+        self.env = OpfaSimEnv(
+            config.task, config.hand, config.regions, obs_type="state", fps=config.fps, arm=config.arm
+        )
+        # what LeRobot records as the dataset's robot_type: the hand(s), on an arm `<arm>_<hand>`
+        self.name = self.robot_type = self.env.robot_type
         self.joint_names = list(self.env.state_names)
         self.depth_names = parse_cameras(config.depth_cameras)
         self.rgb_names = parse_cameras(config.rgb_cameras) if config.rgb_cameras else []

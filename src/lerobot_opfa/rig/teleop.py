@@ -74,7 +74,7 @@ class OpfaExpert(Teleoperator):
         if rig.episode != self._episode:  # the rig placed a new scene: plan it
             self._expert = ScriptedExpert(rig.env, np.random.default_rng(rig.config.seed + rig.episode))
             self._episode = rig.episode
-        action = self._expert.act()
+        action = rig.env.command(self._expert.act())  # on an arm: its joints, by IK
         return {f"{n}{POSITION}": float(v) for n, v in zip(rig.joint_names, action, strict=True)}
 
     def send_feedback(self, feedback: dict[str, Any]) -> None:
