@@ -185,3 +185,18 @@ def test_lerobots_end_effector_entries_are_the_wrist_pose_with_no_arm_model():
         jaw[:, 0], 0.044 - 0.00044 * frames[:, 6].double()
     )
     assert torch.allclose(joint_map.join(body, [jaw]), frames.double(), atol=1e-9)
+
+
+def test_a_robot_without_an_arm_beside_one_with_an_arm_is_refused_saying_how_to_give_it_the_wrist_pose(
+    tmp_path, capsys
+):
+    from lerobot_opfa.datasets.synthetic import write_synthetic_dataset
+
+    write_synthetic_dataset(tmp_path / "sim_umi", "umi", episodes=1, frames=8, n_points=16)
+    write_armed_dataset(tmp_path / "ur5_inspire", "ur5", "inspire", episodes=1, frames=8, n_points=16)
+    maps = f"{tmp_path / 'ur5_inspire'}={write_map(tmp_path / 'ur5.yaml', 'ur5', 'inspire')}"
+    merge = ["dataset", "merge", "--inputs", str(tmp_path / "sim_umi"), str(tmp_path / "ur5_inspire"),
+             "--output", str(tmp_path / "merged"), "--joint-maps", maps]  # fmt: skip
+    assert cli.main(merge) != 0
+    error = capsys.readouterr().err
+    assert f"{tmp_path / 'sim_umi'} names no arm" in error and "`floating` for the simulator's" in error

@@ -209,9 +209,18 @@ def merge_datasets(
     fps = fps or min(i.meta.fps for i in opened)
     for i in opened:
         if i.layout.wrist_names != wrist:
+            armed = {j.root: j.layout.joint_maps[0].armed for j in (opened[0], i)}
+            unarmed = ", ".join(str(root) for root, has_arm in armed.items() if not has_arm)
+            hint = (
+                f"; {unarmed} names no arm: its map's `arm` reads its body as the wrist pose the other's is "
+                "(an arm spec, `floating` for the simulator's wrist entries, `end_effector` for LeRobot's "
+                "ee.* entries), or train it alone"
+                if len(set(armed.values())) > 1
+                else ""
+            )
             raise ValueError(
                 f"inputs disagree: {i.root} has body entries {i.layout.wrist_names}, {opened[0].root} has "
-                f"{wrist}"
+                f"{wrist}{hint}"
             )
         if _sides(i) != sides:
             raise ValueError(
