@@ -21,8 +21,10 @@ is idempotent, so an interrupted run resumes; two runs with different `--conditi
         [--work outputs/cross_rig]
 
 benchmarks/results/cross_rig.json (`runs` of {robot, arm, hand, fps, camera, trained_on, region, condition,
-action_space, successes, episodes, deploy}, `region` "own" or "other") and cross_rig.png are rewritten after
-every evaluation (under a lock in `--work`).
+action_space, successes, episodes, deploy}, `region` "own" or "other"; with `--outcomes N`, `outcomes` of
+the other-region cells: N episodes rerun through LeRobot's loop, counted as success, never_touched (the hand
+never touched the object) or touched_failed) and cross_rig.png are rewritten after every evaluation (under a
+lock in `--work`).
 """
 
 from __future__ import annotations
@@ -89,18 +91,24 @@ def cells(demos: int, conditions: list[str]) -> list[tuple[Training, Robot, Robo
     return out
 
 
-def record(out: Path, row: dict, lock: Path) -> list[dict]:
-    """Every run in `out` with `row` in place of the same cell's, read and written holding the file `lock`:
-    two runs of this benchmark may finish cells at once."""
+def record(out: Path, lock: Path, row: dict, outcomes: dict | None = None) -> list[dict]:
+    """Every run in `out` with `row` in place of the same cell's (and its failure modes, `outcomes`, in place
+    of theirs), read and written holding the file `lock`: two runs of this benchmark may finish cells at
+    once."""
     key = ("robot", "region", "condition")
     out.parent.mkdir(parents=True, exist_ok=True)
     with open(lock, "w") as held:
         fcntl.flock(held, fcntl.LOCK_EX)
-        runs = json.loads(out.read_text())["runs"] if out.exists() else []
-        runs = [r for r in runs if any(r[k] != row[k] for k in key)] + [row]
+        report = json.loads(out.read_text()) if out.exists() else {"runs": []}
+        runs = [r for r in report["runs"] if any(r[k] != row[k] for k in key)] + [row]
         order = {c: i for i, c in enumerate(CONDITIONS)}
         runs.sort(key=lambda r: (r["robot"], r["region"] != "own", order[r["condition"]]))
-        write_json(out, {"runs": runs})
+        report["runs"] = runs
+        if outcomes is not None:
+            cell = {k: row[k] for k in key}
+            kept = [o for o in report.get("outcomes", []) if any(o[k] != cell[k] for k in key)]
+            report["outcomes"] = [*kept, {**cell, **outcomes}]
+        write_json(out, report)
     return runs
 
 
@@ -144,6 +152,10 @@ def main() -> None:
     parser.add_argument("--galr", default="default")
     parser.add_argument("--results", type=Path, default=RESULTS)
     parser.add_argument("--name", default="cross_rig", help="results as NAME.json and NAME.png")
+    parser.add_argument(
+        "--outcomes", type=int, default=0,
+        help="rerun this many episodes of each cell in the other robot's region to tell how they fail",
+    )  # fmt: skip
     args = parser.parse_args()
     scale = fixed_epochs(f"cross_rig-{args.demos}x{args.epochs}", args.demos, args.epochs, args.episodes)
     workspace = Workspace(args.work, scale, args.galr, threads=1)
@@ -172,7 +184,10 @@ def main() -> None:
         print(
             json.dumps(row), f"(commit {result['commit']}, training {result['training_commit']})", flush=True
         )
-        plot(record(out, row, args.work / "results.lock"), picture)
+        outcomes = None
+        if args.outcomes and place != robot:
+            outcomes = {"episodes": args.outcomes, **workspace.failure_modes(evaluation, args.outcomes)}
+        plot(record(out, args.work / "results.lock", row, outcomes), picture)
 
 
 if __name__ == "__main__":

@@ -34,7 +34,9 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         "--arm", help="mount the hand on this arm (`lerobot-opfa arms list`, or an arm spec path): the "
         "dataset records the arm's joints, as its model names them; default: the floating wrist",
     )  # fmt: skip
-    demos.add_argument("--fps", type=positive_int, default=20, help="the robot's control and recording rate")
+    demos.add_argument(
+        "--fps", type=positive_int, help="the robot's control and recording rate (default: the simulator's)"
+    )
     demos.set_defaults(func=_demos)
 
     show = sim.add_parser(
@@ -61,12 +63,13 @@ def _scene_args(parser: argparse.ArgumentParser) -> None:
 
 def _demos(args: argparse.Namespace) -> int:
     from lerobot_opfa.envs.demos import record_demos
+    from lerobot_opfa.envs.env import DEFAULT_FPS
 
     check_writable(args.output_dir, "--output-dir", beside=True)  # the dataset is written beside it first
     meta = record_demos(
         args.task, args.hand, args.episodes, args.output_dir, args.regions, args.seed,
         args.repo_id, args.n_points, args.pointcloud_source, args.depth_cameras, args.overwrite, args.control,
-        args.arm, args.fps,
+        args.arm, args.fps or DEFAULT_FPS,
     )  # fmt: skip
     print(
         f"wrote {args.output_dir}: {meta.total_episodes} episodes, {meta.total_frames} frames of "

@@ -16,7 +16,14 @@ from lerobot_opfa.arms.spec import load_arm
 from lerobot_opfa.checkpoint_files import POSTPROCESSOR, PREPROCESSOR
 from lerobot_opfa.datasets.joint_map import HANDS_SEPARATOR
 from lerobot_opfa.envs.control import EE_ACTION_NAMES, EE_STATE_NAMES, check_control
-from lerobot_opfa.envs.env import OBS_TYPES, POINTCLOUD_SOURCES, check_arm, check_choice, parse_cameras
+from lerobot_opfa.envs.env import (
+    DEFAULT_FPS,
+    OBS_TYPES,
+    POINTCLOUD_SOURCES,
+    check_arm,
+    check_choice,
+    parse_cameras,
+)
 from lerobot_opfa.envs.regions import parse_regions
 from lerobot_opfa.envs.scene import WRIST_JOINTS
 from lerobot_opfa.envs.tasks import ENV_STATE_DIM, TASKS, check_task, task_hands
@@ -116,7 +123,7 @@ class OpfaEnvConfig(EnvConfig):
     rgb_cameras: str = "front"  # with rgb obs types: colour cameras, `observation.images.<name>_rgb`
     camera_width: int = 128  # of the colour cameras (the rig's default size)
     camera_height: int = 96
-    fps: int = 20
+    fps: int = DEFAULT_FPS
     episode_length: int | None = None  # steps; None: the task's default
     control: str = "joints"
     """`joints` (absolute wrist pose and hand joints) or `ee_delta` (a gripper: tool steps and a grasp

@@ -39,6 +39,8 @@ logger = logging.getLogger(__name__)
 OBS_TYPES = ("pointcloud", "state", "pointcloud_state", "rgb", "pointcloud_rgb")
 POINTCLOUD_SOURCES = ("depth", "geometry")
 SETTLE_STEPS = 20  # physics steps after reset so objects come to rest
+DEFAULT_FPS = 20
+"""The simulator's control rate unless a robot says its own (steps of the policy or expert per second)."""
 HOME_Y = 0.16
 """m: with two arms, each wrist's home this far to its side of the table's centre line (left at +y)."""
 
@@ -145,7 +147,7 @@ class OpfaSimEnv(gym.Env):
         rgb_cameras: str | list[str] = "front",
         camera_width: int = 128,
         camera_height: int = 96,
-        fps: int = 20,
+        fps: int = DEFAULT_FPS,
         render_mode: str = "rgb_array",
         render_width: int = 320,
         render_height: int = 240,

@@ -15,6 +15,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from lerobot_opfa.envs.env import DEFAULT_FPS
+
 if TYPE_CHECKING:
     from lerobot_opfa.envs.config import OpfaEnvConfig
 
@@ -84,14 +86,16 @@ def episode_outcomes(
     episodes: int,
     seed: int,
     steps: int | None = None,
+    arm: str | None = None,
+    fps: int = DEFAULT_FPS,
 ) -> list[str]:
     """One of `OUTCOMES` per seeded episode of a point-cloud policy, each `steps` long (None: the task's
-    episode length)."""
+    episode length), the hand on `arm` (None: the floating wrist) at `fps`."""
     from lerobot_opfa.envs.config import OpfaEnvConfig
 
     config = OpfaEnvConfig(
         task=task, hand=hand, regions=",".join(regions), obs_type="pointcloud",
-        pointcloud_source="geometry", n_points=n_points, episode_length=steps,
+        pointcloud_source="geometry", n_points=n_points, episode_length=steps, arm=arm, fps=fps,
     )  # fmt: skip
     return [
         "success" if success else "touched_failed" if touched else "never_touched"

@@ -17,6 +17,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from lerobot_opfa.datasets.io import atomic_directory
+from lerobot_opfa.envs.env import DEFAULT_FPS
 from lerobot_opfa.envs.regions import REGIONS
 from lerobot_opfa.experiments.scales import Scale
 from lerobot_opfa.galr import checkpoints
@@ -35,10 +36,6 @@ CONDITION_LABELS = {
 }
 EVAL_SEED = 100_000
 """Evaluation episodes are seeded from here, far from the demonstrations' seeds (0 and up)."""
-
-
-DEFAULT_FPS = 20
-"""The simulator's default rate (`OpfaSimEnv`)."""
 
 
 @dataclass(frozen=True)
@@ -277,7 +274,8 @@ class Workspace:
             return json.loads(out.read_text())
         outcomes = episode_outcomes(
             self.checkpoint(evaluation.training), evaluation.task, evaluation.hand, evaluation.regions,
-            self.scale.n_points, episodes, EVAL_SEED, self.scale.episode_length,
+            self.scale.n_points, episodes, EVAL_SEED, self.scale.episode_length, evaluation.arm,
+            evaluation.fps,
         )  # fmt: skip
         counts = {outcome: outcomes.count(outcome) for outcome in OUTCOMES}
         write_json(out, counts)
