@@ -5,6 +5,9 @@ Importing this package registers nothing by itself beyond what `config` does."""
 import os
 import sys
 
+DEFAULT_FPS = 20
+"""The simulator's control rate unless a robot says its own (steps of the policy or expert per second)."""
+
 
 def choose_headless_gl() -> None:
     """Picks EGL as MuJoCo's OpenGL backend when none is chosen and there is no display: MuJoCo reads

@@ -6,6 +6,7 @@ import argparse
 import logging
 from pathlib import Path
 
+from lerobot_opfa.envs import DEFAULT_FPS
 from lerobot_opfa.flags import positive_int
 from lerobot_opfa.output_folders import check_writable
 
@@ -63,7 +64,6 @@ def _scene_args(parser: argparse.ArgumentParser) -> None:
 
 def _demos(args: argparse.Namespace) -> int:
     from lerobot_opfa.envs.demos import record_demos
-    from lerobot_opfa.envs.env import DEFAULT_FPS
 
     check_writable(args.output_dir, "--output-dir", beside=True)  # the dataset is written beside it first
     meta = record_demos(

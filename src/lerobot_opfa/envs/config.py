@@ -15,9 +15,9 @@ from lerobot_opfa import checkpoint_files
 from lerobot_opfa.arms.spec import load_arm
 from lerobot_opfa.checkpoint_files import POSTPROCESSOR, PREPROCESSOR
 from lerobot_opfa.datasets.joint_map import HANDS_SEPARATOR
+from lerobot_opfa.envs import DEFAULT_FPS
 from lerobot_opfa.envs.control import EE_ACTION_NAMES, EE_STATE_NAMES, check_control
 from lerobot_opfa.envs.env import (
-    DEFAULT_FPS,
     OBS_TYPES,
     POINTCLOUD_SOURCES,
     check_arm,

@@ -18,7 +18,8 @@ from tqdm.contrib.logging import logging_redirect_tqdm
 from lerobot_opfa.datasets.io import new_dataset
 from lerobot_opfa.datasets.joint_map import HANDS_SEPARATOR
 from lerobot_opfa.datasets.layout import OPFA_META_FILE, hand_entry
-from lerobot_opfa.envs.env import DEFAULT_FPS, OpfaSimEnv
+from lerobot_opfa.envs import DEFAULT_FPS
+from lerobot_opfa.envs.env import OpfaSimEnv
 from lerobot_opfa.envs.experts import ScriptedExpert
 from lerobot_opfa.envs.regions import parse_regions
 from lerobot_opfa.envs.tasks import ENV_STATE_DIM

@@ -11,6 +11,7 @@ import mujoco
 import numpy as np
 
 from lerobot_opfa.datasets.joint_map import HANDS_SEPARATOR, SIDES, JointMap, sided
+from lerobot_opfa.envs import DEFAULT_FPS
 from lerobot_opfa.envs.control import (
     EE_ACTION_NAMES,
     EE_STATE_NAMES,
@@ -39,8 +40,6 @@ logger = logging.getLogger(__name__)
 OBS_TYPES = ("pointcloud", "state", "pointcloud_state", "rgb", "pointcloud_rgb")
 POINTCLOUD_SOURCES = ("depth", "geometry")
 SETTLE_STEPS = 20  # physics steps after reset so objects come to rest
-DEFAULT_FPS = 20
-"""The simulator's control rate unless a robot says its own (steps of the policy or expert per second)."""
 HOME_Y = 0.16
 """m: with two arms, each wrist's home this far to its side of the table's centre line (left at +y)."""
 

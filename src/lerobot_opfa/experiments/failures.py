@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from lerobot_opfa.envs.env import DEFAULT_FPS
+from lerobot_opfa.envs import DEFAULT_FPS
 
 if TYPE_CHECKING:
     from lerobot_opfa.envs.config import OpfaEnvConfig

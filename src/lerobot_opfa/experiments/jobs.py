@@ -17,7 +17,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from lerobot_opfa.datasets.io import atomic_directory
-from lerobot_opfa.envs.env import DEFAULT_FPS
+from lerobot_opfa.envs import DEFAULT_FPS
 from lerobot_opfa.envs.regions import REGIONS
 from lerobot_opfa.experiments.scales import Scale
 from lerobot_opfa.galr import checkpoints
