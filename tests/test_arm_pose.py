@@ -25,6 +25,7 @@ from lerobot_opfa.arms.pose import (
 )
 from lerobot_opfa.envs.env import OpfaSimEnv
 from lerobot_opfa.envs.scene import WRIST_RANGE
+from lerobot_opfa.hands.registry import load_hand
 
 
 def random_rotations(n: int, seed: int = 0) -> torch.Tensor:
@@ -98,29 +99,29 @@ def test_a_pose_body_gives_back_the_entries_its_pose_came_from(name):
     if isinstance(body, EndEffectorPose):
         entries[:, 3:] = torch.from_numpy(generator.normal(0, 1, (64, 3))).clamp(-1.5, 1.5)
     current = torch.tensor(body.home, dtype=torch.float64)
-    back, missed = body.joints(body.wrist_pose(entries), current)
+    back, missed = body.joints(body.pose(entries), current)
     assert not missed.any() and torch.allclose(back, entries, atol=1e-9)
     if isinstance(body, FloatingWrist):
         turned = entries.clone()
         turned[:, 3] += 2 * math.pi
         near_turn = current.clone()
         near_turn[3] = 2 * math.pi
-        assert torch.allclose(body.joints(body.wrist_pose(turned), near_turn)[0], turned, atol=1e-9)
+        assert torch.allclose(body.joints(body.pose(turned), near_turn)[0], turned, atol=1e-9)
 
 
 @pytest.mark.parametrize("arm", ["ur5", "panda"])
-def test_recorded_arm_joints_come_back_through_the_wrist_pose_within_a_millimetre_and_half_a_degree(arm):
-    body = ArmBody.load(arm)
+def test_recorded_arm_joints_come_back_through_the_tool_pose_within_a_millimetre_and_half_a_degree(arm):
+    body = ArmBody.load(arm, load_hand("inspire"))
     home = torch.tensor(body.spec.home, dtype=torch.float64)
     t = torch.linspace(0, 2 * math.pi, 60, dtype=torch.float64)[:, None]
     phases = torch.arange(len(home), dtype=torch.float64)
     recorded = home + 0.25 * torch.sin(t + phases)  # a smooth recorded trajectory about home, 60 frames
-    poses = body.wrist_pose(recorded)
+    poses = body.pose(recorded)
     assert poses.shape == (60, 9)
     for previous, frame in zip(recorded[:-1], range(1, 60), strict=True):
         q, missed = body.joints(poses[frame : frame + 1], previous)
         assert not missed.any()
-        error = pose_matrix(body.wrist_pose(q))[0].inverse() @ pose_matrix(poses[frame])
+        error = pose_matrix(body.pose(q))[0].inverse() @ pose_matrix(poses[frame])
         assert error[:3, 3].norm() < 1e-3
         assert math.degrees(math.acos(min(1.0, (error[:3, :3].trace().item() - 1) / 2))) < 0.5
     far = poses[:1].clone()
@@ -130,17 +131,22 @@ def test_recorded_arm_joints_come_back_through_the_wrist_pose_within_a_millimetr
     assert ((q >= body.chain.lower) & (q <= body.chain.upper)).all()
 
 
-def test_the_floating_wrists_pose_is_the_hands_wrist_frame_in_the_scene():
-    """`arm: floating` reads the simulator's entries as the pose of the hand's wrist (its base body), the
-    frame an arm's pose names, not the tool frame the entries drive."""
+def test_the_tool_frame_sits_on_the_hands_wrist_as_in_the_scene():
+    """The transform an arm's pose takes from the hand's wrist (its base body, what the arm's flange
+    carries) to its tool frame is the one between the scene's hand and tool bodies."""
     env = OpfaSimEnv("lift", "inspire", obs_type="state")
     arm = env.scene.arms[None]
-    body = FloatingWrist(wrist_in_tool(env.hand_models[None]))
+    tool_in_wrist = torch.linalg.inv(wrist_in_tool(env.hand_models[None])).numpy()
     root = next(i for i in range(env.model.nbody) if env.model.body(i).name.startswith("hand/"))
+    tool = env.model.body("tool").id
+
+    def pose(body: int) -> np.ndarray:
+        out = np.eye(4)
+        out[:3, :3], out[:3, 3] = env.data.xmat[body].reshape(3, 3), env.data.xpos[body]
+        return out
+
     for wrist in np.random.default_rng(4).uniform(WRIST_RANGE[:, 0], WRIST_RANGE[:, 1], (8, 6)):
         env.data.qpos[arm.wrist_qpos] = wrist
         mujoco.mj_kinematics(env.model, env.data)
-        pose = pose_matrix(body.wrist_pose(torch.from_numpy(wrist)))
-        assert np.abs(pose[:3, 3].numpy() - env.data.xpos[root]).max() < 1e-9
-        assert np.abs(pose[:3, :3].numpy() - env.data.xmat[root].reshape(3, 3)).max() < 1e-9
+        assert np.abs(pose(root) @ tool_in_wrist - pose(tool)).max() < 1e-9
     env.close()

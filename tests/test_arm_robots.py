@@ -56,15 +56,15 @@ def test_an_arms_joints_round_trip_through_the_wrist_pose_within_a_millimetre(tm
     hand's entries exact."""
     layout, root = armed_layout(tmp_path, robot)
     joint_map, frames = layout.joint_maps[0], recorded(root)
-    assert layout.wrist_names == [f"wrist.{name}" for name in POSE_NAMES]
+    assert layout.wrist_names == [f"tool.{name}" for name in POSE_NAMES]
     body, qs = joint_map.split(frames[ACTION], ACTION)
     arm = joint_map.arm(joint_map.slots[0])
     (recorded_arm,) = joint_map.arm_joints(frames[ACTION], ACTION)
-    assert torch.allclose(pose_matrix(body), arm.spec.wrist_pose(arm.chain, recorded_arm), atol=1e-9)
+    assert torch.allclose(body, arm.pose(recorded_arm), atol=1e-9)
     arms, missed = joint_map.reach(body, frames[OBS_STATE])
     action = joint_map.join(body, qs, arms)
     assert missed == 0 and action.shape == frames[ACTION].shape
-    error = pose_error(arm.spec.wrist_pose(arm.chain, arms[0]), pose_matrix(body))
+    error = pose_error(pose_matrix(arm.pose(arms[0])), pose_matrix(body))
     assert error[:, :3].norm(dim=-1).max() < 1e-3 and error[:, 3:].norm(dim=-1).max() < math.radians(0.5)
     hand_columns = slice(len(arm.spec.joints), None)
     assert torch.equal(action[:, hand_columns], frames[ACTION][:, hand_columns])
@@ -89,7 +89,7 @@ def test_two_robots_of_different_arms_hands_and_rates_merge_train_and_each_gets_
     assert cli.main(merge) == 0
     policy, pre, post, dataset = make_policy(tmp_path, "merged", action_space=space)
     assert dataset.meta.fps == 10
-    assert dataset.meta.features[OBS_STATE]["names"][:9] == [f"wrist.{name}" for name in POSE_NAMES]
+    assert dataset.meta.features[OBS_STATE]["names"][:9] == [f"tool.{name}" for name in POSE_NAMES]
     loss, _ = policy.forward(pre(batch_of(dataset, [0, 5, 20, 40])))
     loss.backward()
     assert loss.isfinite()

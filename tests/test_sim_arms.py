@@ -43,10 +43,10 @@ def test_arm_demos_record_the_arms_joints_at_the_robots_rate_and_read_as_the_wri
     assert meta.features[OBS_STATE]["names"] == [*joints, "left_jaw_joint"]
     layout = read_layout(meta.features, meta.robot_type, ur5_demos)  # the dataset says its map
     joint_map = layout.joint_maps[0]
-    assert joint_map.armed and layout.wrist_names[:3] == ["wrist.x", "wrist.y", "wrist.z"]
+    assert joint_map.armed and layout.wrist_names[:3] == ["tool.x", "tool.y", "tool.z"]
     state = torch.tensor(read_columns(ur5_demos, [OBS_STATE])[OBS_STATE], dtype=torch.float64)
     pose, _ = joint_map.split(state, OBS_STATE)
-    approach = pose_matrix(pose)[:, :3, 2]  # the hand's fingers, along the wrist frame's +z
+    approach = pose_matrix(pose)[:, :3, 2]  # the tool frame's approach axis
     assert (pose[:, 2] > 0).all() and (approach[:, 2] < -0.9).all(), "the hand above the table, pointing down"
 
 

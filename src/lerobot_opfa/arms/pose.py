@@ -1,13 +1,16 @@
-"""The body convention robots of different arms share: the hand's wrist pose in the workspace frame, as a
-position (m) and a continuous rotation, the 6D representation (the rotation matrix's first two columns;
-Zhou et al., "On the Continuity of Rotation Representations in Neural Networks", CVPR 2019: Euler angles and
-quaternions have no continuous map from rotations, so a network regressing them jumps). Conversions from the
-conventions robots record: an arm's joints (`ArmBody`), the floating simulator wrist's Euler entries, and
-LeRobot's end-effector entries (a rotation vector)."""
+"""The body convention robots of different arms share: the pose of the hand's tool frame (its grasp centre
+and approach axis, `envs.toolframe`, found from the hand's geometry) in the workspace frame, as a position
+(m) and a continuous rotation, the 6D representation (the rotation matrix's first two columns; Zhou et al.,
+"On the Continuity of Rotation Representations in Neural Networks", CVPR 2019: Euler angles and quaternions
+have no continuous map from rotations, so a network regressing them jumps). The tool frame rather than the
+hand's base: one grasp is one pose whatever the hand, where the bases of two hands grasping alike sit
+centimetres and tens of degrees apart (docs/results.md, "Robots of different arms"). Conversions from the
+conventions robots record: an arm's joints (`ArmBody`), the floating simulator wrist's Euler entries (its
+tool frame already), and LeRobot's end-effector entries (a rotation vector, its gripper frame)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import torch
 from torch import Tensor
@@ -108,11 +111,13 @@ class ArmBody:
 
     spec: ArmSpec
     chain: ArmChain
+    tool_in_wrist: Tensor
+    """(4, 4): the mounted hand's tool frame in its wrist frame (`wrist_in_tool` inverted)."""
 
     @classmethod
-    def load(cls, arm: str) -> ArmBody:
+    def load(cls, arm: str, hand: HandModel) -> ArmBody:
         spec = load_arm(arm)
-        return cls(spec, spec.chain())
+        return cls(spec, spec.chain(), torch.linalg.inv(wrist_in_tool(hand)))
 
     @property
     def joint_names(self) -> tuple[str, ...]:
@@ -130,15 +135,16 @@ class ArmBody:
     def upper(self) -> Tensor:
         return self.chain.upper
 
-    def wrist_pose(self, q: Tensor) -> Tensor:
-        """(B, dof) arm joints -> (B, 9) wrist poses."""
-        return pose_vector(self.spec.wrist_pose(self.chain, q)).to(q.dtype)
+    def pose(self, q: Tensor) -> Tensor:
+        """(B, dof) arm joints -> (B, 9) tool poses."""
+        return pose_vector(self.spec.wrist_pose(self.chain, q) @ self.tool_in_wrist).to(q.dtype)
 
     def joints(self, poses: Tensor, current: Tensor) -> tuple[Tensor, Tensor]:
-        """(T, 9) wrist poses of a chunk -> (T, dof) joints within the limits, from the joints `current`
+        """(T, 9) tool poses of a chunk -> (T, dof) joints within the limits, from the joints `current`
         (dof,) the arm holds; and which poses were out of reach (T,), answered with the nearest pose the
         solver got to, never refused."""
-        targets = self.spec.flange_target(pose_matrix(poses.to(torch.float64)))
+        wrist = pose_matrix(poses.to(torch.float64)) @ torch.linalg.inv(self.tool_in_wrist)
+        targets = self.spec.flange_target(wrist)
         q, _ = solve_chunk(self.chain, targets, current)
         error = pose_error(self.chain.flange_pose(q), targets)
         missed = (error[:, :3].norm(dim=-1) > REACHED[0]) | (error[:, 3:].norm(dim=-1) > REACHED[1])
@@ -162,23 +168,21 @@ def wrist_in_tool(hand: HandModel) -> Tensor:
 
 @dataclass
 class FloatingWrist:
-    """The simulator's floating wrist as a body: its six entries (`WRIST_JOINTS`: x, y, z, yaw, pitch, roll:
-    the tool frame, `floating_tool_pose`) <-> the pose of the hand's wrist it carries (`wrist_in_tool`), both
-    ways in closed form, so that a floating hand's demos share the convention of hands on arms. Pitch within
-    +-pi/2, as the simulator's range keeps it."""
+    """The simulator's floating wrist as a body: its six entries (`WRIST_JOINTS`: x, y, z, yaw, pitch, roll)
+    <-> the tool pose they drive (`floating_tool_pose`), both ways in closed form, so that a floating hand's
+    demos share the convention of hands on arms. Pitch within +-pi/2, as the simulator's range keeps it."""
 
-    wrist_in_tool: Tensor = field(default_factory=lambda: torch.eye(4, dtype=torch.float64))
     name: str = "floating"
     joint_names: tuple[str, ...] = WRIST_JOINTS
     home: tuple[float, ...] = (0.0, 0.0, 0.3, 0.0, 0.0, 0.0)
     lower: Tensor = torch.full((6,), -torch.inf, dtype=torch.float64)
     upper: Tensor = torch.full((6,), torch.inf, dtype=torch.float64)
 
-    def wrist_pose(self, q: Tensor) -> Tensor:
-        return pose_vector(floating_tool_pose(q.to(torch.float64)) @ self.wrist_in_tool).to(q.dtype)
+    def pose(self, q: Tensor) -> Tensor:
+        return pose_vector(floating_tool_pose(q.to(torch.float64))).to(q.dtype)
 
     def joints(self, poses: Tensor, current: Tensor) -> tuple[Tensor, Tensor]:
-        pose = pose_matrix(poses.to(torch.float64)) @ torch.linalg.inv(self.wrist_in_tool)
+        pose = pose_matrix(poses.to(torch.float64))
         half_turn = rotation_about(0, torch.full(poses.shape[:-1], torch.pi, dtype=torch.float64))
         r = pose[..., :3, :3] @ half_turn  # Rz(yaw) Ry(pitch) Rx(roll)
         yaw = torch.atan2(r[..., 1, 0], r[..., 0, 0])
@@ -202,7 +206,7 @@ class EndEffectorPose:
     lower: Tensor = torch.full((6,), -torch.inf, dtype=torch.float64)
     upper: Tensor = torch.full((6,), torch.inf, dtype=torch.float64)
 
-    def wrist_pose(self, q: Tensor) -> Tensor:
+    def pose(self, q: Tensor) -> Tensor:
         q64 = q.to(torch.float64)
         rotation = rotation_vector_matrix(q64[..., 3:])
         return torch.cat([q64[..., :3], rotation[..., :, 0], rotation[..., :, 1]], dim=-1).to(q.dtype)
@@ -221,5 +225,5 @@ def load_body(arm: str, hand: str) -> ArmBody | FloatingWrist | EndEffectorPose:
     """The body a joint map's `arm` names for its slot's `hand` (what `load_hand` takes): a pose body
     (`POSE_BODIES`), else an arm (`arms.spec.load_arm`)."""
     if arm == FloatingWrist.name:
-        return FloatingWrist(wrist_in_tool(load_hand(hand)))
-    return EndEffectorPose() if arm == EndEffectorPose.name else ArmBody.load(arm)
+        return FloatingWrist()
+    return EndEffectorPose() if arm == EndEffectorPose.name else ArmBody.load(arm, load_hand(hand))

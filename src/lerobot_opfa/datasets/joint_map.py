@@ -38,7 +38,7 @@ values mean the same on both sides (a flexion is a flexion), only the geometry i
         joints: {kRightHandIndex: {joint: index_mcp_flex, scale: -1.47, offset: 1.47}, ...}
 
 A hand on an arm the package models (`arm: ur5`, a built-in or an arm spec path; in a slot, or at the top of
-a one-handed map) has its arm's joint entries read as the wrist's pose in the workspace (`arms.pose`: FK on
+a one-handed map) has its arm's joint entries read as the tool pose in the workspace (`arms.pose`: FK on
 the way in, IK seeded at the joints the arm holds on the way out): the body convention robots of different
 arms share. The arm's entries are named after its joints (`shoulder_pan_joint`, `<joint>.pos`, or with the
 slot's side, `left_<joint>.pos`) or listed in `arm_joints` (entry: arm joint, or `{joint, scale, offset}`
@@ -118,8 +118,8 @@ class MappedJoint:
 
 SIDES = ("left", "right")
 SLOT_FIELDS = ("side", "hand", "joints", "state_joints", "action_joints", "arm", "arm_joints")
-WRIST_POSE = "wrist"
-"""An armed robot's body entries in the policy's space: `wrist.<POSE_NAMES>` (`left.wrist.x` with sides)."""
+TOOL_POSE = "tool"
+"""An armed robot's body entries in the policy's space: `tool.<POSE_NAMES>` (`left.tool.x` with sides)."""
 DEGREE = math.pi / 180
 
 
@@ -415,7 +415,7 @@ class JointMap:
         return given
 
     def _check_arm_body(self) -> None:
-        """An armed robot's body is its arms' wrist poses: each slot names an arm, and every entry is an
+        """An armed robot's body is its hands' tool poses: each slot names an arm, and every entry is an
         arm's or a hand's joint or dropped (another entry would have nowhere to go in the policy's space)."""
         armed = [slot.arm is not None for slot in self.slots]
         if not any(armed):
@@ -428,12 +428,12 @@ class JointMap:
                 fix = "drop them (`drop:`)" if key == OBS_STATE else "an action entry must be a joint"
                 raise JointMapError(
                     f"{self.source}: {key} entries {free[:4]} are neither an arm's nor a hand's joint; an "
-                    f"armed robot's body is its wrist pose: {fix}"
+                    f"armed robot's body is its hand's tool pose: {fix}"
                 )
 
     @property
     def armed(self) -> bool:
-        """Whether the body entries are arm joints, read as the wrists' poses."""
+        """Whether the body entries are arm joints (or another body), read as the hands' tool poses."""
         return self.slots[0].arm is not None
 
     def arm(self, slot: HandSlot):
@@ -563,12 +563,12 @@ class JointMap:
     def body_names(self, key: str) -> list[str]:
         """The body entries of the policy's `key`: the robot's entries besides the hands' joints (and the
         dropped ones), in its order, which the policy models as they are; for an armed robot each arm's
-        wrist pose (`wrist.x`, ..., `left.wrist.x` with sides)."""
+        hand's tool pose (`tool.x`, ..., `left.tool.x` with sides)."""
         if not self.armed:
             return self._free_body(key)
         from lerobot_opfa.arms.pose import POSE_NAMES
 
-        prefixes = [f"{slot.side}.{WRIST_POSE}" if slot.side else WRIST_POSE for slot in self.slots]
+        prefixes = [f"{slot.side}.{TOOL_POSE}" if slot.side else TOOL_POSE for slot in self.slots]
         return [f"{prefix}.{name}" for prefix in prefixes for name in POSE_NAMES]
 
     def _free_body(self, key: str) -> list[str]:
@@ -655,7 +655,7 @@ class JointMap:
         if not self.armed:
             return x[..., body], qs
         poses = [
-            self.arm(slot).wrist_pose(q.reshape(-1, q.shape[-1])).reshape(*q.shape[:-1], -1)
+            self.arm(slot).pose(q.reshape(-1, q.shape[-1])).reshape(*q.shape[:-1], -1)
             for slot, q in zip(self.slots, self.arm_joints(x, key), strict=True)
         ]
         return torch.cat(poses, dim=-1).to(x.dtype), qs
@@ -666,7 +666,7 @@ class JointMap:
         return x[..., index] * scale.to(x.device, x.dtype) + offset.to(x.device, x.dtype)
 
     def reach(self, body: torch.Tensor, state: torch.Tensor | None = None) -> tuple[list[torch.Tensor], int]:
-        """An armed robot's wrist poses (B, [T], 9 per slot) -> per slot its arm's joints (B, [T], dof) by IK
+        """An armed robot's tool poses (B, [T], 9 per slot) -> per slot its arm's joints (B, [T], dof) by IK
         seeded at the joints the arm holds in `state` (B, state entries; None: its home), each row's chunk in
         one batch; and how many poses were out of reach (answered with the nearest pose, never refused)."""
         rows = body.reshape(body.shape[0], -1, body.shape[-1])
@@ -688,7 +688,7 @@ class JointMap:
         self, body: torch.Tensor, qs: list[torch.Tensor], arms: list[torch.Tensor] | None = None
     ) -> torch.Tensor:
         """(body entries, per slot its joints in spec order and units) -> (..., action entries) in the
-        robot's order and units: the inverse of `split` on actions. An armed robot's body is its wrist
+        robot's order and units: the inverse of `split` on actions. An armed robot's body is its tool
         poses, put into its arms' joints by `arms` (`reach`; from the arms' home when not given)."""
         columns_body, slots, arm_columns = self._indices(ACTION)
         if self.armed and arms is None:

@@ -16,7 +16,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from lerobot_opfa.arms.pose import ArmBody, FloatingWrist, wrist_in_tool
+from lerobot_opfa.arms.pose import ArmBody, FloatingWrist
 from lerobot_opfa.envs.scene import WRIST_JOINTS, WRIST_RANGE
 from lerobot_opfa.hands.model import HandModel
 
@@ -93,8 +93,8 @@ class ArmJoints:
     def __init__(self, arm: str, hand: HandModel, home: np.ndarray) -> None:
         self.ref = arm
         """The arm as given (a built-in's name or a spec path): what the robot's joint map names."""
-        self.body = ArmBody.load(arm)
-        self.floating = FloatingWrist(wrist_in_tool(hand))
+        self.body = ArmBody.load(arm, hand)
+        self.floating = FloatingWrist()
         self.hand_dof = hand.dof
         arm_home = torch.tensor(self.body.home, dtype=torch.float64)
         self.home = self._ik(np.asarray(home, dtype=np.float64), arm_home)
@@ -117,7 +117,7 @@ class ArmJoints:
 
     def _ik(self, wrist_entries: np.ndarray, seed: torch.Tensor) -> np.ndarray:
         """The arm joints that put the hand's wrist where the carriage entries `wrist_entries` do."""
-        pose = self.floating.wrist_pose(torch.from_numpy(wrist_entries)[None])
+        pose = self.floating.pose(torch.from_numpy(wrist_entries)[None])
         q, _ = self.body.joints(pose, seed)
         return q[0].numpy()
 
@@ -125,7 +125,7 @@ class ArmJoints:
         """The carriage's and the hand's targets of an action (arm joints, hand joints; within its space),
         the carriage's Euler angles continuing those it holds (`wrist`)."""
         q = torch.from_numpy(action[: len(self.names)].astype(np.float64))[None]
-        entries, _ = self.floating.joints(self.body.wrist_pose(q), torch.from_numpy(wrist))
+        entries, _ = self.floating.joints(self.body.pose(q), torch.from_numpy(wrist))
         return np.concatenate([entries[0].numpy(), action[len(self.names) :]])
 
     def command(self, targets: np.ndarray) -> np.ndarray:
