@@ -34,12 +34,7 @@ def write_synthetic_dataset(
         raise ValueError(f"need at least 1 episode, frame and point, got {episodes}, {frames}, {n_points}")
     model = load_hand(hand)
     names = [*WRIST_NAMES, *(joint_names or model.joint_names)]
-    features = {
-        OBS_STATE: {"dtype": "float32", "shape": (len(names),), "names": names},
-        ACTION: {"dtype": "float32", "shape": (len(names),), "names": names},
-        OBS_POINTCLOUD: {"dtype": "float32", "shape": (3 * n_points,), "names": None},
-        OBS_ENV_STATE: {"dtype": "float32", "shape": (3,), "names": ["object_x", "object_y", "object_z"]},
-    }
+    features = _features(names, n_points)
     repo_id = f"local/{Path(root).name}"
     create = dict(repo_id=repo_id, fps=fps, features=features, robot_type=hand, use_videos=False)
     with new_dataset(root, **create) as dataset:
@@ -66,12 +61,7 @@ def write_armed_dataset(
     spec, model = load_arm(arm), load_hand(hand)
     arm_names = [f"{joint}.pos" for joint in spec.joints]
     names = [*arm_names, *model.joint_names]
-    features = {
-        OBS_STATE: {"dtype": "float32", "shape": (len(names),), "names": names},
-        ACTION: {"dtype": "float32", "shape": (len(names),), "names": names},
-        OBS_POINTCLOUD: {"dtype": "float32", "shape": (3 * n_points,), "names": None},
-        OBS_ENV_STATE: {"dtype": "float32", "shape": (3,), "names": ["object_x", "object_y", "object_z"]},
-    }
+    features = _features(names, n_points)
     create = dict(
         repo_id=f"local/{Path(root).name}", fps=fps, features=features, robot_type=f"{spec.name}_{hand}",
         use_videos=False,
@@ -98,6 +88,16 @@ def write_armed_dataset(
                 })  # fmt: skip
             dataset.save_episode()
     return Path(root)
+
+
+def _features(names: list[str], n_points: int) -> dict:
+    """State and action of the entries `names`, a flattened cloud of `n_points` and the object's position."""
+    return {
+        OBS_STATE: {"dtype": "float32", "shape": (len(names),), "names": names},
+        ACTION: {"dtype": "float32", "shape": (len(names),), "names": names},
+        OBS_POINTCLOUD: {"dtype": "float32", "shape": (3 * n_points,), "names": None},
+        OBS_ENV_STATE: {"dtype": "float32", "shape": (3,), "names": ["object_x", "object_y", "object_z"]},
+    }
 
 
 def _write_episodes(dataset, model, episodes: int, frames: int, n_points: int, seed: int) -> None:
