@@ -55,6 +55,8 @@ from lerobot_opfa.experiments.scales import fixed_epochs  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"
 TASK = "lift"
+SHORT = {"wo_cotrain": "alone", "naive_cotrain": "naive", "opfa": "OPFA", "untrained": "control"}
+"""Conditions as the plot names them (`control`: OPFA untrained)."""
 MERGED_FPS = 10
 """The merge's rate: the lowest of the robots' (`dataset merge`'s default)."""
 
@@ -91,10 +93,10 @@ def cells(demos: int, conditions: list[str]) -> list[tuple[Training, Robot, Robo
     return out
 
 
-def record(out: Path, lock: Path, row: dict, outcomes: dict | None = None) -> list[dict]:
+def record(out: Path, lock: Path, row: dict, commit: str | None, outcomes: dict | None = None) -> list[dict]:
     """Every run in `out` with `row` in place of the same cell's (and its failure modes, `outcomes`, in place
-    of theirs), read and written holding the file `lock`: two runs of this benchmark may finish cells at
-    once."""
+    of theirs) and the `commit` the cell was evaluated at, read and written holding the file `lock`: two
+    runs of this benchmark may finish cells at once."""
     key = ("robot", "region", "condition")
     out.parent.mkdir(parents=True, exist_ok=True)
     with open(lock, "w") as held:
@@ -104,6 +106,7 @@ def record(out: Path, lock: Path, row: dict, outcomes: dict | None = None) -> li
         order = {c: i for i, c in enumerate(CONDITIONS)}
         runs.sort(key=lambda r: (r["robot"], r["region"] != "own", order[r["condition"]]))
         report["runs"] = runs
+        report["commit"] = commit
         if outcomes is not None:
             cell = {k: row[k] for k in key}
             kept = [o for o in report.get("outcomes", []) if any(o[k] != cell[k] for k in key)]
@@ -129,13 +132,14 @@ def plot(runs: list[dict], path: Path) -> None:
             ax.bar(x, rate, color=colours[run["condition"]], hatch="//" if run["region"] == "other" else None)
             ax.text(x, rate + 1, f"{run['successes']}/{run['episodes']}", ha="center", fontsize=8)
         ax.set_xticks([i + (r["region"] == "other") for i, r in enumerate(mine)])
-        ax.set_xticklabels(
-            [f"{r['condition']}\n{r['region']} region\n{r['fps']} fps" for r in mine], fontsize=7
-        )
+        ax.set_xticklabels([f"{SHORT[r['condition']]}\n{r['fps']} fps" for r in mine], fontsize=8)
         ax.set_title(f"{robot.arm} + {robot.hand} ({robot.fps} fps demos in {robot.region})")
         ax.axhline(80, color="grey", lw=0.8, ls=":")
     axes[0].set(ylabel="lift success (%)", ylim=(0, 110))
-    fig.suptitle("two robots of different arms, hands and rates; hatched: the other robot's region")
+    fig.suptitle(
+        "lift, two robots of different arms, hands and rates: in each panel the robot's own region, then "
+        "(hatched) the other robot's"
+    )
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -187,7 +191,7 @@ def main() -> None:
         outcomes = None
         if args.outcomes and place != robot:
             outcomes = {"episodes": args.outcomes, **workspace.failure_modes(evaluation, args.outcomes)}
-        plot(record(out, args.work / "results.lock", row, outcomes), picture)
+        plot(record(out, args.work / "results.lock", row, result["commit"], outcomes), picture)
 
 
 if __name__ == "__main__":
