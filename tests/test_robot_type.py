@@ -49,3 +49,21 @@ def test_a_robot_of_another_hand_is_refused_in_one_line_and_runs_by_the_users_wo
     assert robot_of(encode_step("umi", hand="umi"), "so101_follower") == [[0]]
     with pytest.raises(ValueError, match="names hand\\(s\\) robotiq_2f85"):
         robot_of(encode_step("umi", hand="umi"), "robotiq_2f85")
+
+
+def test_a_robot_on_an_arm_is_refused_by_a_policy_of_the_floating_wrist_and_runs_on_a_body_kept_as_recorded():
+    """Both have six body entries and the umi's jaw: a UR5's joints would be read as the simulator's wrist
+    pose without a word. A policy whose body entries are a recorded robot's own (not modelled) says
+    nothing."""
+    from lerobot_opfa.datasets.joint_map import JointMap
+    from lerobot_opfa.envs.scene import WRIST_JOINTS
+    from lerobot_opfa.hands.registry import load_spec
+
+    names = [*WRIST_JOINTS, "left_jaw_joint"]
+    floating = JointMap.named_after(load_spec("umi"), names, names).to_dict()
+    with pytest.raises(ValueError, match="drives 'umi' on the floating wrist, but .* names arm\\(s\\) ur5"):
+        robot_of(encode_step("umi", joint_maps=[floating]), "ur5_umi")
+    assert robot_of(encode_step("umi"), "ur5_umi") == [[0]]
+    assert robot_of(encode_step("umi", joint_maps=[floating], accept_robot_type="ur5_umi"), "ur5_umi") == [
+        [0]
+    ]

@@ -477,20 +477,23 @@ class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
         return robot
 
     def _check_arm(self, robot: tuple[int, ...], robot_type: str | None) -> None:
-        """A deployed robot whose `robot_type` names another built-in arm than the trained robot's (or an arm
-        where it had none) is refused: its arm's joints would be read as the other's, as many of them or
-        not (`accept_robot_type` overrides)."""
+        """A deployed robot whose `robot_type` names another built-in arm than the trained robot's, or an arm
+        where the trained robot was the simulator's floating wrist, is refused: its arm's joints would be read
+        as the other body's, as many of them or not (`accept_robot_type` overrides). A trained robot whose
+        body entries are not modelled (an arm's joints kept as they are) says nothing either way."""
         if not robot_type or robot_type == self.accept_robot_type:
             return
         named = set(hands_named_in(robot_type, builtin_arms()))
-        trained = {
-            arm_name(slot.arm) for slot in self.maps[robot].slots if slot.arm not in (None, *POSE_BODIES)
-        }
-        if named and named != trained:
-            mine = f"'{self.robot_name(robot)}' on " + (", ".join(sorted(trained)) or "no arm it models")
+        joint_map = self.maps[robot]
+        trained = {arm_name(slot.arm) for slot in joint_map.slots if slot.arm not in (None, *POSE_BODIES)}
+        floating = any(slot.arm == FLOATING for slot in joint_map.slots) or (
+            not joint_map.armed and set(WRIST_JOINTS) <= set(joint_map.body_names(OBS_STATE))
+        )
+        if named and (named != trained if trained else floating):
+            mine = f"'{self.robot_name(robot)}' on " + (", ".join(sorted(trained)) or "the floating wrist")
             raise ValueError(
                 f"this policy drives {mine}, but the robot's robot_type '{robot_type}' names arm(s) "
-                f"{', '.join(sorted(named))}: its joints would be read as another arm's; deploy a policy "
+                f"{', '.join(sorted(named))}: its joints would be read as another body's; deploy a policy "
                 f"trained on this arm, or if the robot is the trained one, say so: `lerobot-opfa policy "
                 f"for-robot --policy CHECKPOINT --hand {self.robot_name(robot)} --robot-type {robot_type} "
                 "--output OUT`"
