@@ -137,6 +137,7 @@ def solve_chunk(
     arm: ArmChain, targets: Tensor, current: Tensor, iterations: int = 8
 ) -> tuple[Tensor, Tensor]:
     """Joints (T, dof) for a chunk of flange poses `targets` (T, 4, 4), every pose seeded at the joints the
-    arm holds now (`current`, (dof,)) and all solved in one batch: a chunk's poses lie close together, and
-    one batch costs about what one pose does (`solve`)."""
+    arm holds now (`current`: (dof,), or (T, dof), one row per pose, for a batch of robots' chunks) and all
+    solved in one batch: a chunk's poses lie close together, and one batch costs about what one pose does
+    (`solve`)."""
     return solve(arm, targets, current.to(torch.float64).expand(len(targets), -1), iterations)

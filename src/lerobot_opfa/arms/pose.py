@@ -140,9 +140,9 @@ class ArmBody:
         return pose_vector(self.spec.wrist_pose(self.chain, q) @ self.tool_in_wrist).to(q.dtype)
 
     def joints(self, poses: Tensor, current: Tensor) -> tuple[Tensor, Tensor]:
-        """(T, 9) tool poses of a chunk -> (T, dof) joints within the limits, from the joints `current`
-        (dof,) the arm holds; and which poses were out of reach (T,), answered with the nearest pose the
-        solver got to, never refused."""
+        """(T, 9) tool poses -> (T, dof) joints within the limits, from the joints `current` the arm holds
+        ((dof,) for all, or (T, dof) one per pose); and which poses were out of reach (T,), answered with the
+        nearest pose the solver got to, never refused."""
         wrist = pose_matrix(poses.to(torch.float64)) @ torch.linalg.inv(self.tool_in_wrist)
         targets = self.spec.flange_target(wrist)
         q, _ = solve_chunk(self.chain, targets, current)
@@ -189,7 +189,7 @@ class FloatingWrist:
         pitch = torch.asin((-r[..., 2, 0]).clamp(-1.0, 1.0))
         roll = torch.atan2(r[..., 2, 1], r[..., 2, 2])
         current = current.to(torch.float64)
-        angles = [nearest_turn(a, current[3 + i]) for i, a in enumerate((yaw, pitch, roll))]
+        angles = [nearest_turn(a, current[..., 3 + i]) for i, a in enumerate((yaw, pitch, roll))]
         q = torch.cat([pose[..., :3, 3], torch.stack(angles, dim=-1)], dim=-1)
         return q.to(poses.dtype), torch.zeros(poses.shape[:-1], dtype=torch.bool)
 

@@ -350,7 +350,6 @@ class JointMap:
         for slot in self.slots:
             self._bind_slot(slot, state, action)
         slots = tuple(replace(s, arm_joints=self._arm_entries(s, state, action)) for s in self.slots)
-        self = replace(self, slots=slots)
         for key in (OBS_STATE, ACTION):
             claimed = [e for slot in self.slots for e in slot.key_joints(key)]
             twice = sorted({e for e in claimed if claimed.count(e) > 1})
@@ -376,7 +375,7 @@ class JointMap:
                 )
             if entry not in state:
                 raise JointMapError(f"{self.source}: drop lists '{entry}', which is not in observation.state")
-        bound = replace(self, state_names=tuple(state), action_names=tuple(action), _columns={})
+        bound = replace(self, slots=slots, state_names=tuple(state), action_names=tuple(action), _columns={})
         bound._check_arm_body()
         return bound
 
@@ -667,21 +666,22 @@ class JointMap:
 
     def reach(self, body: torch.Tensor, state: torch.Tensor | None = None) -> tuple[list[torch.Tensor], int]:
         """An armed robot's tool poses (B, [T], 9 per slot) -> per slot its arm's joints (B, [T], dof) by IK
-        seeded at the joints the arm holds in `state` (B, state entries; None: its home), each row's chunk in
-        one batch; and how many poses were out of reach (answered with the nearest pose, never refused)."""
-        rows = body.reshape(body.shape[0], -1, body.shape[-1])
-        seeds = None if state is None else self.arm_joints(state.reshape(len(rows), -1), OBS_STATE)
+        seeded at the joints the arm holds in `state` (B, state entries; None: its home), every pose of the
+        batch in one solve; and how many poses were out of reach (answered with the nearest pose, never
+        refused)."""
+        rows = body.detach().cpu().reshape(body.shape[0], -1, body.shape[-1])  # (B, T, body)
+        steps = rows.shape[1]
+        seeds = (
+            None if state is None else self.arm_joints(state.detach().cpu().reshape(len(rows), -1), OBS_STATE)
+        )
         out, missed = [], 0
         for i, slot in enumerate(self.slots):
             arm = self.arm(slot)
-            home = torch.tensor(arm.home, dtype=torch.float64)
-            answers = []
-            for b, poses in enumerate(rows[..., 9 * i : 9 * (i + 1)]):
-                current = home if seeds is None else seeds[i][b]
-                q, out_of_reach = arm.joints(poses.detach().cpu(), current.detach().cpu())
-                answers.append(q)
-                missed += int(out_of_reach.sum())
-            out.append(torch.stack(answers).reshape(*body.shape[:-1], -1).to(body.device, body.dtype))
+            poses = rows[..., 9 * i : 9 * (i + 1)].reshape(-1, 9)
+            current = torch.tensor(arm.home) if seeds is None else seeds[i].repeat_interleave(steps, dim=0)
+            q, out_of_reach = arm.joints(poses, current.to(torch.float64))
+            missed += int(out_of_reach.sum())
+            out.append(q.reshape(*body.shape[:-1], -1).to(body.device, body.dtype))
         return out, missed
 
     def join(

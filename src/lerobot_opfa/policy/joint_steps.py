@@ -413,6 +413,7 @@ class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
         self.last_frames: FrameRobot | None = None
         self._decoded_caches: dict[int, LatentCache] = {}
         self._named_hands: dict[str, frozenset[str]] = {}
+        self._arms_accepted: set[tuple[tuple[int, ...], str]] = set()
 
     def __call__(self, transition):
         new = transition.copy()
@@ -480,8 +481,13 @@ class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
         """A deployed robot whose `robot_type` names another built-in arm than the trained robot's, or an arm
         where the trained robot was the simulator's floating wrist, is refused: its arm's joints would be read
         as the other body's, as many of them or not (`accept_robot_type` overrides). A trained robot whose
-        body entries are not modelled (an arm's joints kept as they are) says nothing either way."""
-        if not robot_type or robot_type == self.accept_robot_type:
+        body entries are not modelled (an arm's joints kept as they are) says nothing either way. Judged once
+        per robot type: a deployed robot gives it with every frame."""
+        if (
+            not robot_type
+            or robot_type == self.accept_robot_type
+            or (robot, robot_type) in self._arms_accepted
+        ):
             return
         named = set(hands_named_in(robot_type, builtin_arms()))
         joint_map = self.maps[robot]
@@ -498,6 +504,7 @@ class OpfaEncodeJointsStep(_HandSpace, RelativeActionsProcessorStep):
                 f"for-robot --policy CHECKPOINT --hand {self.robot_name(robot)} --robot-type {robot_type} "
                 "--output OUT`"
             )
+        self._arms_accepted.add((robot, robot_type))
 
     def pinned_robot(self, name: str) -> tuple[int, ...]:
         """The trained robot `name` names (`inspire`, or `inspire+xhand`, left first)."""
