@@ -10,19 +10,23 @@ action = normalised wrist + z, the colour camera kept, depth dropped). Rows (`--
   I/O (`policy convert-io`) and run by `lerobot-eval --env.type=opfa` on each hand (`--episodes`).
 - `untrained`: the control, the same configuration with its learning rates at 0 for one step (its
   weights as initialised, its normalisation the dataset's), run the same way.
+- `blind`: the control that cannot see the can: the same demos recorded with the task's objects drawn by
+  no camera (`--robot.hide_object`; the expert still reads where the can is), merged, trained and converted
+  as `cotrained`, and evaluated in the same blind scene (`--env.hide_object`).
 - `alone`: one ACT per hand trained on that hand's own joints (its recorded dataset, no GaLR).
 
 ACT at the small size the CPU protocol allows (the exact config is written to the JSON): dim_model 256,
 feedforward 1024, 2 encoder layers, chunk 20, no pretrained backbone, batch 32, learning rate 1e-4 for the
 model and the backbone (LeRobot's 1e-5 suits a pretrained backbone over ~100k steps). One torch thread.
 
-    MUJOCO_GL=egl .venv/bin/python benchmarks/bench_stock_policies.py [--rows cotrained,untrained]
+    MUJOCO_GL=egl .venv/bin/python benchmarks/bench_stock_policies.py [--rows cotrained,untrained,blind]
         [--demos 20] [--epochs 40] [--episodes 50] [--work outputs/stock]
 
 Each stage's output and wall time are kept under `--work` with the commit (`bench_rig.Stages`): an
 interrupted run resumes at the stage it stopped in, and a finished cell is not run again. Results:
 benchmarks/results/stock_policies.json (`runs` of {policy, action_space, hand, task, demos, successes,
-episodes, epochs, train_minutes, control}) and stock_policies.png.
+episodes, epochs, train_minutes, control, commit}) and stock_policies.png; the rows run replace their
+own runs in it and leave the other rows' (each run names the commit it was trained at).
 """
 
 from __future__ import annotations
@@ -53,26 +57,28 @@ LEARNING_RATE = 1e-4
 BATCH = 32
 
 
-def record(stages: Stages, hand: str, demos: int, size: int) -> Path:
-    """The expert's colour demos of `hand` on the rig, failed episodes dropped."""
-    work, calibration = stages.work, stages.work / f"rig_{hand}"
-    recorded, kept = work / "data" / f"{hand}_recorded", work / "data" / hand
+def record(stages: Stages, hand: str, demos: int, size: int, blind: bool = False) -> Path:
+    """The expert's colour demos of `hand` on the rig, failed episodes dropped (`blind`: the can drawn by no
+    camera)."""
+    name = f"{hand}_blind" if blind else hand
+    work, calibration = stages.work, stages.work / f"rig_{name}"
+    recorded, kept = work / "data" / f"{name}_recorded", work / "data" / name
     command = [
         str(BIN / "lerobot-record"), *rig_args(TASK, hand, calibration, RECORD_S, 0),
         f"--robot.width={size}", f"--robot.height={size}", "--teleop.type=opfa_expert",
-        f"--dataset.repo_id=local/{hand}_rig", f"--dataset.root={recorded}",
-        f"--dataset.num_episodes={demos}", f"--dataset.fps={FPS}",
+        f"--dataset.repo_id=local/{name}_rig", f"--dataset.root={recorded}",
+        f"--dataset.num_episodes={demos}", f"--dataset.fps={FPS}", f"--robot.hide_object={blind}",
     ]  # fmt: skip
-    stages.run(f"record_{hand}", [recorded, calibration], command)
+    stages.run(f"record_{name}", [recorded, calibration], command)
     failed = [o["episode"] for o in episodes_log(calibration) if not o["success"]]
     if not failed:
         return recorded
     drop = [
-        str(BIN / "lerobot-edit-dataset"), f"--repo_id=local/{hand}_rig", f"--root={recorded}",
-        f"--new_repo_id=local/{hand}", f"--new_root={kept}", "--operation.type=delete_episodes",
+        str(BIN / "lerobot-edit-dataset"), f"--repo_id=local/{name}_rig", f"--root={recorded}",
+        f"--new_repo_id=local/{name}", f"--new_root={kept}", "--operation.type=delete_episodes",
         f"--operation.episode_indices={failed}",
     ]  # fmt: skip
-    stages.run(f"drop_{hand}", [kept], drop)
+    stages.run(f"drop_{name}", [kept], drop)
     return kept
 
 
@@ -101,13 +107,15 @@ def train(
     return out / "checkpoints" / "last" / "pretrained_model"
 
 
-def evaluate(stages: Stages, name: str, hand: str, model: Path, episodes: int, size: int) -> tuple[int, int]:
+def evaluate(
+    stages: Stages, name: str, hand: str, model: Path, episodes: int, size: int, blind: bool = False
+) -> tuple[int, int]:
     out = stages.work / f"eval_{name}_{hand}"
     command = [
         str(BIN / "lerobot-eval"), f"--policy.path={model}", "--policy.device=cpu", "--env.type=opfa",
         f"--env.task={TASK}", f"--env.hand={hand}", f"--env.regions={REGION}", "--env.obs_type=rgb",
         f"--env.camera_width={size}", f"--env.camera_height={size}", f"--eval.n_episodes={episodes}",
-        "--eval.batch_size=1", f"--seed={EVAL_SEED}", f"--output_dir={out}",
+        "--eval.batch_size=1", f"--seed={EVAL_SEED}", f"--output_dir={out}", f"--env.hide_object={blind}",
     ]  # fmt: skip
     stages.run(f"eval_{name}_{hand}", [out], command, env=ONE_THREAD)
     overall = json.loads((out / "eval_info.json").read_text())["overall"]
@@ -153,7 +161,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--rows", default="cotrained,untrained", help="cotrained, untrained, alone")
+    parser.add_argument("--rows", default="cotrained,untrained", help="cotrained, untrained, blind, alone")
     parser.add_argument("--hands", default="umi,inspire")
     parser.add_argument("--demos", type=int, default=20)
     parser.add_argument("--epochs", type=int, default=40)
@@ -164,23 +172,32 @@ def main() -> None:
     args = parser.parse_args()
     stages = Stages(args.work.resolve())
     hands, rows = args.hands.split(","), args.rows.split(",")
-    data = {hand: record(stages, hand, args.demos, args.size) for hand in hands}
-    merged, latent = stages.work / "data" / "merged", stages.work / "data" / "latent"
-    merge = [str(BIN / "lerobot-opfa"), "dataset", "merge", "--inputs", *map(str, data.values()),
-             "--output", str(merged), "--galr", args.galr]  # fmt: skip
-    stages.run("merge", [merged], merge)
-    to_latent = [str(BIN / "lerobot-opfa"), "policy", "latent-dataset", "--input", str(merged), "--output",
-                 str(latent), "--drop", "observation.images.front_depth"]  # fmt: skip
-    stages.run("latent", [latent], to_latent)
     runs = []
 
+    def latent_of(data: dict[str, Path], name: str) -> Path:
+        """The hands' demos merged with the GaLR and turned into the latent dataset ACT trains on."""
+        merged, latent = stages.work / "data" / f"merged{name}", stages.work / "data" / f"latent{name}"
+        merge = [str(BIN / "lerobot-opfa"), "dataset", "merge", "--inputs", *map(str, data.values()),
+                 "--output", str(merged), "--galr", args.galr]  # fmt: skip
+        stages.run(f"merge{name}", [merged], merge)
+        to_latent = [str(BIN / "lerobot-opfa"), "policy", "latent-dataset", "--input", str(merged),
+                     "--output", str(latent), "--drop", "observation.images.front_depth"]  # fmt: skip
+        stages.run(f"latent{name}", [latent], to_latent)
+        return latent
+
     def cell(row: str, model: Path, hand: str, space: str, control: str, epochs: float, train_stage: str):
-        successes, episodes = evaluate(stages, row, hand, model, args.episodes, args.size)
+        successes, episodes = evaluate(stages, row, hand, model, args.episodes, args.size, control == "blind")
         minutes = round(stages.done[train_stage]["wall_s"] / 60, 1)
         runs.append({"policy": "act", "action_space": space, "hand": hand, "task": TASK, "demos": args.demos,
                      "successes": successes, "episodes": episodes, "epochs": epochs,
-                     "train_minutes": minutes, "control": control})  # fmt: skip
+                     "train_minutes": minutes, "control": control,
+                     "commit": stages.done[train_stage]["commit"]})  # fmt: skip
 
+    data = {}
+    if {"cotrained", "untrained", "alone"} & set(rows):
+        data = {hand: record(stages, hand, args.demos, args.size) for hand in hands}
+    if {"cotrained", "untrained"} & set(rows):
+        latent = latent_of(data, "")
     if "cotrained" in rows:
         model = convert(
             stages, "cotrained", train(stages, "cotrained", latent, args.epochs, LEARNING_RATE), latent
@@ -191,22 +208,38 @@ def main() -> None:
         model = convert(stages, "untrained", train(stages, "untrained", latent, 0, 0.0, steps=1), latent)
         for hand in hands:
             cell("untrained", model, hand, "galr", "untrained", 0, "train_untrained")
+    if "blind" in rows:
+        blind = latent_of(
+            {hand: record(stages, hand, args.demos, args.size, blind=True) for hand in hands}, "_blind"
+        )
+        model = convert(stages, "blind", train(stages, "blind", blind, args.epochs, LEARNING_RATE), blind)
+        for hand in hands:
+            cell("blind", model, hand, "galr", "blind", args.epochs, "train_blind")
     if "alone" in rows:
         for hand in hands:
             model = train(stages, f"alone_{hand}", data[hand], args.epochs, LEARNING_RATE)
             cell(f"alone_{hand}", model, hand, "joints", "none", args.epochs, f"train_alone_{hand}")
+    results = RESULTS / "stock_policies.json"
+    kept = json.loads(results.read_text()) if results.exists() else {"runs": []}
+    ran = {(r["action_space"], r["control"], r["hand"]) for r in runs}
+    runs = [
+        {"commit": kept.get("commit"), **r}
+        for r in kept["runs"]
+        if (r["action_space"], r["control"], r["hand"]) not in ran
+    ] + runs
+    demos_kept = {h: episodes_of(d) for h, d in data.items()}
     report = {
         "runs": runs,
         "config": {"act": ACT, "learning_rate": LEARNING_RATE, "batch_size": BATCH, "camera": f"front colour "
                    f"{args.size}x{args.size}", "region": REGION, "galr": args.galr, "torch_threads": 1,
                    "demos_recorded_per_hand": args.demos,
-                   "demos_kept": {h: episodes_of(d) for h, d in data.items()}},
+                   "demos_kept": demos_kept or kept.get("config", {}).get("demos_kept")},
         "commit": source_commit(),
-        "stages": stages.done,
+        "stages": {**kept.get("stages", {}), **stages.done},
         "machine": f"{os.cpu_count()} cores",
     }  # fmt: skip
     RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "stock_policies.json").write_text(json.dumps(report, indent=2))
+    results.write_text(json.dumps(report, indent=2))
     plot(runs, RESULTS / "stock_policies.png")
     print(json.dumps(runs, indent=2))
 

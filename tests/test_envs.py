@@ -149,6 +149,41 @@ def test_gym_ids_and_config():
     vec.close()
 
 
+@pytest.mark.parametrize("task", ["lift", "pull_drawer"])
+def test_a_blind_env_shows_no_object_and_plays_the_same_task(task):
+    """`hide_object`: no colour camera, depth cloud or geometry cloud sees the task's objects; the physics,
+    the object state and the expert's success are those of the seen scene."""
+    from lerobot_opfa.envs.demos import expert_episode
+
+    seen, blind = (
+        OpfaSimEnv(task, "umi", "mid_center", obs_type="pointcloud_rgb", n_points=512, hide_object=hide)
+        for hide in (False, True)
+    )
+    shown, hidden = (env.reset(seed=2)[0] for env in (seen, blind))
+    objects = [g for g in range(seen.model.ngeom) if blind.model.geom_group[g] != seen.model.geom_group[g]]
+    assert objects and not set(objects) & set(seen.scene.hand_geoms.tolist())
+    near = seen.task.env_state(seen.scene, seen.data)[:3]
+    for obs, expected in ((shown, True), (hidden, False)):
+        cloud = obs["pointcloud"].reshape(-1, 3)
+        assert (np.linalg.norm(cloud - near, axis=1) < 0.06).any() == expected
+    assert np.abs(shown["pixels"]["front_rgb"].astype(int) - hidden["pixels"]["front_rgb"]).max() > 100
+    for env in (seen, blind):
+        env.close()
+    states = []
+    for hide in (False, True):
+        env = OpfaSimEnv(
+            task, "umi", "mid_center", obs_type="pointcloud_state", pointcloud_source="geometry",
+            n_points=256, hide_object=hide,
+        )  # fmt: skip
+        frames, success = expert_episode(env, seed=2, region="mid_center", hold=0)
+        assert success
+        cloud = frames[0]["observation.pointcloud"].reshape(-1, 3)
+        assert (np.linalg.norm(cloud - near, axis=1) < 0.06).any() != hide
+        states.append(np.stack([f["observation.environment_state"] for f in frames]))
+        env.close()
+    assert np.array_equal(*states)
+
+
 def test_demos_hold_the_success_for_a_few_frames():
     """Demos go on past their first success for HOLD_STEPS frames, the expert holding its last target, so
     chunks that start in the final approach exist in training; success is still decided in time."""

@@ -133,6 +133,9 @@ class OpfaEnvConfig(EnvConfig):
     """The arm the hand is on (`lerobot-opfa arms list`, or an arm spec path; one-hand tasks): state and
     action are the arm's joints, then the hand's, as `sim demos --arm` records them. None: the floating
     wrist."""
+    hide_object: bool = False
+    """No camera or cloud shows the task's objects: the control condition of a policy blind to the object
+    (train it on demos recorded the same way, `--robot.hide_object`)."""
     policy_action_width: int | None = None
     """The action width of a policy whose postprocessor gives this env its joints, when it differs (a stock
     policy in GaLR space: body + z). LeRobot's lerobot-eval builds even a pretrained policy's action
@@ -256,6 +259,7 @@ class OpfaEnvConfig(EnvConfig):
             "max_episode_steps": steps,
             "control": self.control,
             "arm": self.arm,
+            "hide_object": self.hide_object,
         }
 
 

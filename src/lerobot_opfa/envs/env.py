@@ -30,6 +30,7 @@ from lerobot_opfa.envs.scene import (
     Scene,
     base_spec,
     build_scene,
+    hide_objects,
 )
 from lerobot_opfa.envs.tasks import ENV_STATE_DIM, Placement, Task, make_task, task_hands
 from lerobot_opfa.hands.model import HandModel
@@ -129,7 +130,8 @@ class OpfaSimEnv(gym.Env):
     With `control="ee_delta"` (a gripper on each arm), action and `agent_pos` hold other entries
     (`envs.control`), arm by arm. With `arm` (a one-hand task), the hand is on that arm (`arms.spec`):
     action and `agent_pos` hold the arm's joints, as its model names them, then the hand's
-    (`control.ArmJoints`).
+    (`control.ArmJoints`). With `hide_object`, no camera or cloud shows the task's objects (a control:
+    the same task for a policy blind to the object); `environment_state` and success still read them.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
@@ -152,6 +154,7 @@ class OpfaSimEnv(gym.Env):
         render_height: int = 240,
         control: str = "joints",
         arm: str | None = None,
+        hide_object: bool = False,
     ) -> None:
         self.task = make_task(task)
         names = task_hands(task, hand)
@@ -181,6 +184,8 @@ class OpfaSimEnv(gym.Env):
         self.task.build(spec)
         self.scene = build_scene(spec, self.hand_models)
         self.task.bind(self.scene)
+        if hide_object:
+            hide_objects(self.scene)
         self.model = self.scene.model
         self.data = mujoco.MjData(self.model)
         self.n_substeps = max(1, round(1.0 / (fps * self.model.opt.timestep)))

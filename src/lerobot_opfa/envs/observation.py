@@ -9,7 +9,7 @@ import mujoco
 import numpy as np
 import trimesh
 
-from lerobot_opfa.envs.scene import RENDER_CAMERA, SCENERY_GROUP
+from lerobot_opfa.envs.scene import HIDDEN_GROUP, RENDER_CAMERA, SCENERY_GROUP
 from lerobot_opfa.hands.geometry import geom_mesh
 from lerobot_opfa.pointclouds import WORKSPACE_LOW, PinholeCamera, back_project, crop_and_downsample
 
@@ -167,6 +167,7 @@ class SceneViews:
                 self.sampler = DepthPointCloud(self.model, self.n_points, self.depth_cameras)
             else:
                 exclude = {self.model.geom("table").id, self.model.geom("floor").id}
+                exclude |= {g for g in range(self.model.ngeom) if self.model.geom_group[g] == HIDDEN_GROUP}
                 self.sampler = GeometryPointCloud(self.model, self.n_points, exclude)
         return self.sampler(data, rng).reshape(-1)
 

@@ -33,6 +33,9 @@ COLLISION_GROUP = 3  # geom group MuJoCo does not draw by default (as in MuJoCo 
 # Drawn in pictures only (`OpfaSimEnv.render`): the floor lies below the table, outside every crop, and
 # depth cameras skip drawing it (a sixth to a third of a depth render under software GL).
 SCENERY_GROUP = 5
+# A blind env's task objects (`hide_objects`): they collide and are weighed as before, but no camera, depth
+# sensor or geometry cloud sees them (a group MuJoCo hides by default and no view of ours turns on).
+HIDDEN_GROUP = 4
 RENDER_CAMERA = ("view", (-0.80, -0.35, 0.62))
 LOOK_AT = (0.02, 0.0, 0.06)
 
@@ -199,6 +202,16 @@ def index_arm(model: mujoco.MjModel, hand: HandModel, tool: ToolFrame, prefix: s
             + [model.actuator(f"{prefix}hand/act_{j}").id for j in hand.joint_names]
         ),
     )
+
+
+def hide_objects(scene: Scene) -> None:
+    """Move every geom of the task's objects (all but the hands', the table's and the scenery's) to
+    `HIDDEN_GROUP`: the control condition of a policy blind to the object, on the same scene and physics."""
+    model = scene.model
+    keep = {*scene.hand_geoms.tolist(), model.geom("table").id, model.geom("floor").id}
+    for geom in range(model.ngeom):
+        if geom not in keep:
+            model.geom_group[geom] = HIDDEN_GROUP
 
 
 def tool_to_world(vector: np.ndarray, yaw: float) -> np.ndarray:

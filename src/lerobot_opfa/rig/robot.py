@@ -61,6 +61,7 @@ class OpfaSimRobotConfig(RobotConfig):
     arm: str | None = None  # the arm the hand is on (`lerobot-opfa arms list`); None: the floating wrist
     task: str = "lift"
     regions: str = "all"
+    hide_object: bool = False  # no camera shows the task's objects (demos for a blind control)
     seed: int = 0
     fps: int = 20
     depth_cameras: str = "front"  # comma-separated: front, left, right (`<name>_depth` features)
@@ -104,7 +105,13 @@ class OpfaSimRobot(Robot):
         super().__init__(config)
         self.config = config
         self.env = OpfaSimEnv(
-            config.task, config.hand, config.regions, obs_type="state", fps=config.fps, arm=config.arm
+            config.task,
+            config.hand,
+            config.regions,
+            obs_type="state",
+            fps=config.fps,
+            arm=config.arm,
+            hide_object=config.hide_object,
         )
         # what LeRobot records as the dataset's robot_type: the hand(s), on an arm `<arm>_<hand>`
         self.name = self.robot_type = self.env.robot_type
