@@ -25,8 +25,10 @@ model and the backbone (LeRobot's 1e-5 suits a pretrained backbone over ~100k st
 Each stage's output and wall time are kept under `--work` with the commit (`bench_rig.Stages`): an
 interrupted run resumes at the stage it stopped in, and a finished cell is not run again. Results:
 benchmarks/results/stock_policies.json (`runs` of {policy, action_space, hand, task, demos, successes,
-episodes, epochs, train_minutes, control, commit}) and stock_policies.png; the rows run replace their
-own runs in it and leave the other rows' (each run names the commit it was trained at).
+episodes, epochs, train_minutes, control, follows_object, following_episodes, commit}) and
+stock_policies.png; the rows run replace their own runs in it and leave the other rows' (each run names
+the commit it was trained at). `follows_object` (`failures.object_following`, 20 more episodes per cell):
+whether the wrist goes where the can is.
 """
 
 from __future__ import annotations
@@ -46,6 +48,7 @@ from lerobot_opfa.experiments.jobs import source_commit  # noqa: E402
 RESULTS = Path(__file__).parent / "results"
 TASK = "lift"
 EVAL_SEED = 1000
+FOLLOWING_EPISODES = 20
 RECORD_S = 6.0
 ONE_THREAD = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 ACT = [
@@ -122,6 +125,27 @@ def evaluate(
     return round(overall["pc_success"] * overall["n_episodes"] / 100), overall["n_episodes"]
 
 
+def following(stages: Stages, name: str, model: Path, hand: str, size: int, blind: bool) -> dict:
+    """`failures.object_following` of a checkpoint over FOLLOWING_EPISODES episodes (one torch thread): a
+    policy that reads the camera takes its wrist where the can is (slope about 1), one that does not
+    goes to the same place wherever the can stands (about 0)."""
+    import torch
+
+    from lerobot_opfa.envs.config import OpfaEnvConfig
+    from lerobot_opfa.experiments.failures import object_following
+
+    config = OpfaEnvConfig(
+        task=TASK, hand=hand, regions=REGION, obs_type="rgb", camera_width=size, camera_height=size,
+        hide_object=blind,
+    )  # fmt: skip
+
+    def measure() -> dict:
+        torch.set_num_threads(1)
+        return object_following(model, config, FOLLOWING_EPISODES, EVAL_SEED)
+
+    return stages.measure(f"following_{name}", measure)
+
+
 def convert(stages: Stages, name: str, model: Path, latent: Path) -> Path:
     out = stages.work / f"joints_{name}"
     command = [str(BIN / "lerobot-opfa"), "policy", "convert-io", "--policy", str(model), "--dataset",
@@ -187,10 +211,11 @@ def main() -> None:
 
     def cell(row: str, model: Path, hand: str, space: str, control: str, epochs: float, train_stage: str):
         successes, episodes = evaluate(stages, row, hand, model, args.episodes, args.size, control == "blind")
+        follows = following(stages, f"{row}_{hand}", model, hand, args.size, control == "blind")
         minutes = round(stages.done[train_stage]["wall_s"] / 60, 1)
         runs.append({"policy": "act", "action_space": space, "hand": hand, "task": TASK, "demos": args.demos,
                      "successes": successes, "episodes": episodes, "epochs": epochs,
-                     "train_minutes": minutes, "control": control,
+                     "train_minutes": minutes, "control": control, **follows,
                      "commit": stages.done[train_stage]["commit"]})  # fmt: skip
 
     data = {}

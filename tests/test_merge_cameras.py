@@ -28,15 +28,16 @@ def picture(height: int, width: int, frame: int) -> np.ndarray:
     return (255 * rgb).astype(np.uint8)
 
 
-def record(root: Path, cameras: dict[str, tuple[int, int]], frames: int = 4) -> Path:
-    """A umi dataset with colour cameras `cameras` (key -> (height, width))."""
+def record(root: Path, cameras: dict[str, tuple[int, int]], frames: int = 4, video: bool = False) -> Path:
+    """A umi dataset with colour cameras `cameras` (key -> (height, width)), as pictures or as video."""
+    kind = "video" if video else "image"
     features = {
         OBS_STATE: {"dtype": "float32", "shape": (len(NAMES),), "names": NAMES},
         ACTION: {"dtype": "float32", "shape": (len(NAMES),), "names": NAMES},
-        **{key: {"dtype": "image", "shape": (h, w, 3), "names": ["height", "width", "channels"]}
+        **{key: {"dtype": kind, "shape": (h, w, 3), "names": ["height", "width", "channels"]}
            for key, (h, w) in cameras.items()},
     }  # fmt: skip
-    create = dict(repo_id=f"local/{root.name}", fps=10, features=features, robot_type="umi", use_videos=False)
+    create = dict(repo_id=f"local/{root.name}", fps=10, features=features, robot_type="umi", use_videos=video)
     state = np.array([0.0, 0.0, 0.3, 0.0, 0.0, 0.0, 0.02], np.float32)
     with new_dataset(root, **create) as dataset:
         for t in range(frames):
@@ -74,6 +75,21 @@ def test_cameras_of_other_names_and_sizes_merge_as_one_role_and_a_robot_without_
     assert none["observation.images.front"].abs().max() == 0
     record = json.loads((out / OPFA_META_FILE).read_text())["camera_sources"]["observation.images.front"]
     assert list(record.values()) == ["observation.images.cam_high", "observation.images.top", None]
+
+
+def test_cameras_recorded_as_video_stay_video(inputs, tmp_path):
+    """A role any input keeps as video is written as video (encoded once per episode), not as one picture
+    file per frame; its frames read back as recorded, within the codec's loss."""
+    video = record(tmp_path / "video", {"observation.images.top": (48, 64)}, frames=12, video=True)
+    roles = ["front=observation.images.cam_high", "front=observation.images.top"]
+    out = merge_datasets([video, inputs["high"]], tmp_path / "merged", camera_map=roles)
+    merged = LeRobotDataset("local/merged", root=out)
+    assert merged.meta.features["observation.images.front"]["dtype"] == "video"
+    assert merged.meta.video_keys == ["observation.images.front"] and not list(out.rglob("*.png"))
+    assert len(list((out / "videos").rglob("*.mp4"))) >= 1
+    for index, frame in ((0, 0), (11, 11), (12, 0)):  # the video input's frames, then the pictures'
+        expected = picture(48, 64, frame).transpose(2, 0, 1) / 255
+        assert np.abs(merged[index]["observation.images.front"].numpy() - expected).mean() < 0.02
 
 
 def test_without_a_map_cameras_of_other_sizes_are_named_with_the_fix(inputs, tmp_path):

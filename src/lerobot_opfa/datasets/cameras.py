@@ -55,9 +55,12 @@ def is_depth(feature: dict) -> bool:
     return bool((feature.get("info") or {}).get("is_depth_map"))
 
 
-def _merged_feature(feature: dict) -> dict:
-    return {"dtype": "image", "shape": tuple(feature["shape"]), "names": feature["names"],
-            "info": {"is_depth_map": is_depth(feature)}}  # fmt: skip
+def _merged_feature(feature: dict, recorded: list[dict]) -> dict:
+    """The merged camera of a role shaped as `feature`: video where any input keeps the role as video (a
+    dataset of many frames stays the size it was recorded at), else pictures."""
+    video = any(f["dtype"] == "video" for f in recorded)
+    return {"dtype": "video" if video else "image", "shape": tuple(feature["shape"]),
+            "names": feature["names"], "info": {"is_depth_map": is_depth(feature)}}  # fmt: skip
 
 
 def plan_cameras(inputs: dict[Path, dict], camera_map: dict[str, list[str]]) -> list[Camera]:
@@ -92,7 +95,7 @@ def plan_cameras(inputs: dict[Path, dict], camera_map: dict[str, list[str]]) -> 
                 f"--camera-map {role}: its cameras disagree ({found}); a role is colour or depth in every "
                 "input, and depth maps are merged at the size they were recorded (their intrinsics say it)"
             )
-        cameras.append(Camera(f"{OBS_IMAGES}.{role}", _merged_feature(first), sources))
+        cameras.append(Camera(f"{OBS_IMAGES}.{role}", _merged_feature(first, [*recorded.values()]), sources))
     for key, feature in inputs[roots[0]].items():
         if key in mapped or feature["dtype"] not in CAMERA_DTYPES:
             continue
@@ -105,7 +108,8 @@ def plan_cameras(inputs: dict[Path, dict], camera_map: dict[str, list[str]]) -> 
                 f"the inputs disagree on camera '{key}' ({found}); record them alike, or name them one role "
                 f"with --camera-map ROLE={key} (colour pictures are then resized)"
             )
-        cameras.append(Camera(key, _merged_feature(feature), dict.fromkeys(roots, key)))
+        recorded = [features[key] for features in inputs.values()]
+        cameras.append(Camera(key, _merged_feature(feature, recorded), dict.fromkeys(roots, key)))
     return cameras
 
 

@@ -255,7 +255,8 @@ def merge_datasets(
     for source in opened:
         _check_limits(source, galr)
     total = sum(i.meta.total_frames for i in opened)
-    create = dict(repo_id=repo_id, fps=fps, features=features, robot_type="opfa_merged", use_videos=False)
+    videos = any(camera.feature["dtype"] == "video" for camera in cameras)
+    create = dict(repo_id=repo_id, fps=fps, features=features, robot_type="opfa_merged", use_videos=videos)
     with new_dataset(output, overwrite, **create) as merged:
         partial = merged.root
         with tqdm(total=total, desc="merging", unit="frame") as progress:
