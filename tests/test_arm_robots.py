@@ -61,13 +61,36 @@ def test_an_arms_joints_round_trip_through_the_wrist_pose_within_a_millimetre(tm
     arm = joint_map.arm(joint_map.slots[0])
     (recorded_arm,) = joint_map.arm_joints(frames[ACTION], ACTION)
     assert torch.allclose(body, arm.pose(recorded_arm), atol=1e-9)
-    arms, missed = joint_map.reach(body, frames[OBS_STATE])
+    arms, missed, _ = joint_map.reach(body, frames[OBS_STATE])
     action = joint_map.join(body, qs, arms)
     assert missed == 0 and action.shape == frames[ACTION].shape
     error = pose_error(pose_matrix(arm.pose(arms[0])), pose_matrix(body))
     assert error[:, :3].norm(dim=-1).max() < 1e-3 and error[:, 3:].norm(dim=-1).max() < math.radians(0.5)
     hand_columns = slice(len(arm.spec.joints), None)
     assert torch.equal(action[:, hand_columns], frames[ACTION][:, hand_columns])
+    _, _, held_back = joint_map.reach(body, frames[OBS_STATE], seconds=1 / ROBOTS[robot][2])
+    assert held_back == 0, "a recorded action is one the arm makes at its rate"
+
+
+def test_an_action_far_from_the_held_joints_moves_the_arm_no_faster_than_its_velocity_limits(tmp_path):
+    """A chunk of poses on the far side of the workspace (IK converges there, or does not): each action
+    moves every joint at most its velocity limit times the time between actions, the first from the joints
+    held, and the step counts them; without a rate, IK jumps there at once."""
+    layout, root = armed_layout(tmp_path, "ur5_inspire")
+    joint_map, frames = layout.joint_maps[0], recorded(root)
+    arm = joint_map.arm(joint_map.slots[0])
+    state = frames[OBS_STATE][:1]
+    (held,) = joint_map.arm_joints(state, OBS_STATE)
+    far = held.clone()
+    far[0, 0] += 1.5  # the base turned 86 deg away
+    chunk = arm.pose(far).expand(4, -1).unsqueeze(0)  # (1 robot, 4 actions, 9)
+    free, _, held_back = joint_map.reach(chunk, state)
+    assert held_back == 0 and abs(free[0][0, 0, 0] - held[0, 0]) > 1.4, "one jump of the base"
+    (bounded,), _, held_back = joint_map.reach(chunk, state, seconds=0.1)
+    step = arm.speed * 0.1  # 0.315 rad for the UR5's base
+    moves = torch.diff(torch.cat([held.unsqueeze(1), bounded.to(torch.float64)], dim=1), dim=1).abs()
+    assert (moves <= step + 1e-6).all() and held_back == 4
+    assert float(bounded[0, -1, 0] - held[0, 0]) == pytest.approx(4 * float(step[0]), abs=1e-5), "in steps"
 
 
 @pytest.mark.parametrize("space", ["per_embodiment", "galr"])
@@ -89,6 +112,7 @@ def test_two_robots_of_different_arms_hands_and_rates_merge_train_and_each_gets_
     assert cli.main(merge) == 0
     policy, pre, post, dataset = make_policy(tmp_path, "merged", action_space=space)
     assert dataset.meta.fps == 10
+    assert [s.get_config().get("fps") for s in pre.steps if hasattr(s, "record_for_decode")] == [10]
     assert dataset.meta.features[OBS_STATE]["names"][:9] == [f"tool.{name}" for name in POSE_NAMES]
     loss, _ = policy.forward(pre(batch_of(dataset, [0, 5, 20, 40])))
     loss.backward()

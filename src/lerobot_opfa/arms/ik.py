@@ -32,6 +32,8 @@ class ArmChain:
     chain: pk.SerialChain
     lower: Tensor
     upper: Tensor
+    speed: Tensor
+    """(dof,) each joint's velocity limit (rad/s, m/s) as the model gives it; inf where it gives none."""
 
     @classmethod
     def from_model(cls, path: Path | str, flange: str) -> ArmChain:
@@ -54,7 +56,8 @@ class ArmChain:
                 chain = pk.build_serial_chain_from_urdf(path.read_bytes(), flange)
         chain = chain.to(dtype=torch.float64)
         lower, upper = (torch.as_tensor(limit, dtype=torch.float64) for limit in chain.get_joint_limits())
-        return cls(chain, lower, upper)
+        speed = torch.as_tensor(chain.get_joint_velocity_limits()[1], dtype=torch.float64)
+        return cls(chain, lower, upper, torch.where(speed > 0, speed, torch.inf))
 
     @property
     def joint_names(self) -> list[str]:
@@ -131,6 +134,19 @@ def solve(arm: ArmChain, targets: Tensor, seed: Tensor, iterations: int = 8) -> 
         step = (jacobian.transpose(1, 2) @ torch.linalg.solve(damped, error.unsqueeze(-1))).squeeze(-1)
         q = torch.minimum(torch.maximum(q + step.clamp(-MAX_STEP, MAX_STEP), arm.lower), arm.upper)
     return q, pose_error(arm.flange_pose(q), targets)
+
+
+def within_speed(q: Tensor, held: Tensor, step: Tensor) -> tuple[Tensor, Tensor]:
+    """Joints (B, T, dof) for T successive actions from the joints `held` (B, dof) now, each moved at most
+    `step` (dof,) from the one before: an IK answer that could not converge, or a pose far from the last,
+    never sends a jump the arm cannot make in one action. Also which actions were held back (B, T)."""
+    out, limited, previous = [], [], held
+    for t in range(q.shape[1]):
+        bounded = torch.minimum(torch.maximum(q[:, t], previous - step), previous + step)
+        limited.append((bounded != q[:, t]).any(dim=-1))
+        out.append(bounded)
+        previous = bounded
+    return torch.stack(out, dim=1), torch.stack(limited, dim=1)
 
 
 def solve_chunk(

@@ -135,6 +135,10 @@ class ArmBody:
     def upper(self) -> Tensor:
         return self.chain.upper
 
+    @property
+    def speed(self) -> Tensor:
+        return self.chain.speed
+
     def pose(self, q: Tensor) -> Tensor:
         """(B, dof) arm joints -> (B, 9) tool poses."""
         return pose_vector(self.spec.wrist_pose(self.chain, q) @ self.tool_in_wrist).to(q.dtype)
@@ -177,6 +181,7 @@ class FloatingWrist:
     home: tuple[float, ...] = (0.0, 0.0, 0.3, 0.0, 0.0, 0.0)
     lower: Tensor = torch.full((6,), -torch.inf, dtype=torch.float64)
     upper: Tensor = torch.full((6,), torch.inf, dtype=torch.float64)
+    speed: Tensor = torch.full((6,), torch.inf, dtype=torch.float64)
 
     def pose(self, q: Tensor) -> Tensor:
         return pose_vector(floating_tool_pose(q.to(torch.float64))).to(q.dtype)
@@ -205,6 +210,7 @@ class EndEffectorPose:
     home: tuple[float, ...] = (0.0, 0.0, 0.3, 0.0, 0.0, 0.0)
     lower: Tensor = torch.full((6,), -torch.inf, dtype=torch.float64)
     upper: Tensor = torch.full((6,), torch.inf, dtype=torch.float64)
+    speed: Tensor = torch.full((6,), torch.inf, dtype=torch.float64)
 
     def pose(self, q: Tensor) -> Tensor:
         q64 = q.to(torch.float64)

@@ -664,25 +664,34 @@ class JointMap:
         index, scale, offset = columns
         return x[..., index] * scale.to(x.device, x.dtype) + offset.to(x.device, x.dtype)
 
-    def reach(self, body: torch.Tensor, state: torch.Tensor | None = None) -> tuple[list[torch.Tensor], int]:
+    def reach(
+        self, body: torch.Tensor, state: torch.Tensor | None = None, seconds: float | None = None
+    ) -> tuple[list[torch.Tensor], int, int]:
         """An armed robot's tool poses (B, [T], 9 per slot) -> per slot its arm's joints (B, [T], dof) by IK
         seeded at the joints the arm holds in `state` (B, state entries; None: its home), every pose of the
-        batch in one solve; and how many poses were out of reach (answered with the nearest pose, never
-        refused)."""
+        batch in one solve; how many poses were out of reach (answered with the nearest pose, never
+        refused); and, given the `seconds` between actions, how many were held back to the arm's velocity
+        limits (each action at most `speed * seconds` from the one before, the first from `state`)."""
+        from lerobot_opfa.arms.ik import within_speed  # pytorch-kinematics only for arms
+
         rows = body.detach().cpu().reshape(body.shape[0], -1, body.shape[-1])  # (B, T, body)
         steps = rows.shape[1]
         seeds = (
             None if state is None else self.arm_joints(state.detach().cpu().reshape(len(rows), -1), OBS_STATE)
         )
-        out, missed = [], 0
+        out, missed, held_back = [], 0, 0
         for i, slot in enumerate(self.slots):
             arm = self.arm(slot)
             poses = rows[..., 9 * i : 9 * (i + 1)].reshape(-1, 9)
             current = torch.tensor(arm.home) if seeds is None else seeds[i].repeat_interleave(steps, dim=0)
             q, out_of_reach = arm.joints(poses, current.to(torch.float64))
             missed += int(out_of_reach.sum())
+            if seconds is not None and seeds is not None:
+                step = arm.speed.to(q.dtype) * seconds
+                q, limited = within_speed(q.reshape(len(rows), steps, -1), seeds[i].to(q.dtype), step)
+                held_back += int(limited.sum())
             out.append(q.reshape(*body.shape[:-1], -1).to(body.device, body.dtype))
-        return out, missed
+        return out, missed, held_back
 
     def join(
         self, body: torch.Tensor, qs: list[torch.Tensor], arms: list[torch.Tensor] | None = None
@@ -692,7 +701,7 @@ class JointMap:
         poses, put into its arms' joints by `arms` (`reach`; from the arms' home when not given)."""
         columns_body, slots, arm_columns = self._indices(ACTION)
         if self.armed and arms is None:
-            arms, _ = self.reach(body)
+            arms, _, _ = self.reach(body)
         out = body.new_empty((*body.shape[:-1], len(self.action_names)))
         out[..., columns_body] = body[..., :0] if self.armed else body
         for q, (columns, scale, offset) in zip([*qs, *(arms or [])], [*slots, *arm_columns], strict=True):

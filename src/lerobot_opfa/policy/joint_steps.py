@@ -134,6 +134,9 @@ class _HandSpace:
     robots: list[list[int]] = field(default_factory=list)
     """Per robot (joint map), the embodiment each of its hand slots holds; empty (saved before): one
     one-handed robot per embodiment."""
+    fps: int | None = None
+    """The rate the policy acts at (its training dataset's): an arm's joints move at most their velocity
+    limits / fps from one action to the next. None (a step saved before): bounded by IK's own step only."""
     link: str = ""
     """Read from checkpoints saved before LeRobot paired the steps (they matched by this id); unused."""
     galr: Galr | None = field(default=None, repr=False)
@@ -324,6 +327,7 @@ class _HandSpace:
             "galr_config": self.galr_config,
             "joint_maps": [dict(m) for m in self.joint_maps],
             "robots": [list(robot) for robot in self.robots],
+            **({} if self.fps is None else {"fps": self.fps}),
         }
 
     def galr_state(self, prefix: str | tuple[str, ...]) -> dict[str, torch.Tensor]:
@@ -685,11 +689,12 @@ class OpfaDecodeJointsStep(_HandSpace, AbsoluteActionsProcessorStep):
     def __post_init__(self):
         if self.action_space is not None:
             super().__post_init__()
-        self._unreachable = 0
+        self._unreachable = self._held_back = 0
 
     def reset(self) -> None:
-        """A new episode: its first pose out of an arm's reach is reported again."""
-        self._unreachable = 0
+        """A new episode: its first pose out of an arm's reach, and its first action held back to the
+        arm's speed, are reported again."""
+        self._unreachable = self._held_back = 0
 
     @property
     def hands(self) -> _HandSpace:
@@ -711,13 +716,21 @@ class OpfaDecodeJointsStep(_HandSpace, AbsoluteActionsProcessorStep):
         joint_map = frames.joint_map or hands.trained_map(robot)
         arms = None
         if joint_map.armed:
-            arms, missed = joint_map.reach(wrist, frames.state)
+            seconds = None if hands.fps is None else 1.0 / hands.fps
+            arms, missed, held_back = joint_map.reach(wrist, frames.state, seconds)
             if missed and not self._unreachable:
                 logger.warning(
                     "%d wrist pose(s) the policy asked for are out of the arm's reach (%s); the arm goes to "
                     "the nearest it reaches (reported once per episode)", missed, joint_map.source,
                 )  # fmt: skip
+            if held_back and not self._held_back:
+                logger.warning(
+                    "%d action(s) would move the arm (%s) faster than its velocity limits at %s fps; each "
+                    "goes as far as the limits allow (reported once per episode)", held_back,
+                    joint_map.source, hands.fps,
+                )  # fmt: skip
             self._unreachable += missed
+            self._held_back += held_back
         new[TransitionKey.ACTION] = joint_map.join(wrist, qs, arms)
         return new
 

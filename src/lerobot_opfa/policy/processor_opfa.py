@@ -286,6 +286,7 @@ def policy_space_steps(
         use_cached_latents=cached,
         record_for_decode=True,
         decoded_state=config.decoded_state,
+        fps=int(meta.fps),
     )
     tables = _policy_space_tables(config, layout, encode, Path(meta.root))
     normalize = OpfaNormalizeStep(
