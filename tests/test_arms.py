@@ -97,3 +97,23 @@ def test_arms_list_and_check_on_the_command_line(tmp_path, capsys):
     assert cli.main(["arms", "check", "ur6"]) == 2
     assert "did you mean 'ur5'" in capsys.readouterr().err
     assert math.isclose(load_arm("panda").base[0, 3].item(), -0.55)
+
+
+@pytest.mark.parametrize(
+    "mount", ["{xyz: [0, 0, 0], rpy: [3.14159, 0, 0]}", "{xyz: [0, 0, -0.15], rpy: [0, 0, 0]}"]
+)
+def test_a_mount_that_puts_the_hand_inside_the_arm_is_one_line(tmp_path, capsys, mount):
+    """The UR5's spec with the hand turned back into the wrist, or set 15 cm behind the flange: refused where
+    an arm is loaded for a hand (`arms check`, a joint map's arm), naming the field and the links."""
+    from lerobot_opfa.arms.pose import ArmBody
+
+    lines = builtin_arms()["ur5"].read_text().splitlines()
+    spec = tmp_path / "ur5_backwards.yaml"
+    spec.write_text("\n".join(f"mount: {mount}" if line.startswith("mount:") else line for line in lines))
+    with pytest.raises(ValueError, match=r"field 'mount': it puts the inspire inside the arm .* of wrist_"):
+        ArmBody.load(str(spec), load_hand("inspire"))
+    assert cli.main(["arms", "check", str(spec), "--hand", "inspire", "--samples", "4"]) == 2
+    errors = capsys.readouterr().err.strip().splitlines()
+    assert len(errors) == 1 and "inside the arm" in errors[0], errors
+    for hand in ("umi", "inspire", "leap"):
+        ArmBody.load("ur5", load_hand(hand))  # the built-in mount: clear of the arm

@@ -42,6 +42,7 @@ def _list(args: argparse.Namespace) -> int:
 
 def _check(args: argparse.Namespace) -> int:
     from lerobot_opfa.arms.check import FK_TOLERANCE, draw, fk_error_vs_mujoco, reach, sample_joints
+    from lerobot_opfa.arms.pose import check_mount
     from lerobot_opfa.arms.spec import load_arm
     from lerobot_opfa.hands.registry import load_hand
 
@@ -53,6 +54,8 @@ def _check(args: argparse.Namespace) -> int:
     print(
         f"FK vs MuJoCo over {args.samples} random joint values: {position:.1e} m, {rotation:.1e} (rotation)"
     )
+    check_mount(spec, chain, hand)
+    print(f"mount: the {hand.name} clear of the arm's links at home")
     reached = reach(spec, chain, hand)
     missed = [name for name, ok in zip(reached.regions, reached.reached, strict=True) if not ok]
     print(

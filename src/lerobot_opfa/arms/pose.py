@@ -16,7 +16,7 @@ import torch
 from torch import Tensor
 
 from lerobot_opfa.arms.ik import ArmChain, pose_error, solve_chunk
-from lerobot_opfa.arms.spec import ArmSpec, load_arm
+from lerobot_opfa.arms.spec import ArmSpec, ArmSpecError, load_arm
 from lerobot_opfa.envs.scene import WRIST_JOINTS
 from lerobot_opfa.envs.toolframe import tool_frame
 from lerobot_opfa.hands.model import HandModel
@@ -26,6 +26,11 @@ POSE_NAMES = ("x", "y", "z", "r11", "r21", "r31", "r12", "r22", "r32")
 """The wrist pose's entries: position, then the rotation matrix's first column, then its second."""
 REACHED = (1e-3, 0.5 * torch.pi / 180)
 """m and rad: an IK answer farther than this from its pose is a pose out of reach (clamped, counted)."""
+MOUNT_CLEARANCE = (0.03, 0.05, 0.02)
+"""A mount puts its hand inside the arm when, the arm at home and the hand open, more than 2 % of the hand's
+surface lies within 3 cm of the lines joining the arm's link frames, away from the flange (beyond 5 cm of
+it, where the hand meets the arm). Measured: 0 % for umi, Inspire and LEAP on the UR5 and the Panda as
+mounted; 10-56 % with the hand turned back into the arm or set 15 cm behind the flange."""
 
 
 def pose_vector(pose: Tensor) -> Tensor:
@@ -117,7 +122,9 @@ class ArmBody:
     @classmethod
     def load(cls, arm: str, hand: HandModel) -> ArmBody:
         spec = load_arm(arm)
-        return cls(spec, spec.chain(), torch.linalg.inv(wrist_in_tool(hand)))
+        chain = spec.chain()
+        check_mount(spec, chain, hand)
+        return cls(spec, chain, torch.linalg.inv(wrist_in_tool(hand)))
 
     @property
     def joint_names(self) -> tuple[str, ...]:
@@ -153,6 +160,34 @@ class ArmBody:
         error = pose_error(self.chain.flange_pose(q), targets)
         missed = (error[:, :3].norm(dim=-1) > REACHED[0]) | (error[:, 3:].norm(dim=-1) > REACHED[1])
         return q.to(poses.dtype), missed
+
+
+def check_mount(spec: ArmSpec, chain: ArmChain, hand: HandModel) -> None:
+    """Refuse a spec whose `mount` puts `hand` inside the arm (`MOUNT_CLEARANCE`; the links' meshes are not
+    read: the lines through their frames stand for them)."""
+    near, ball, share = MOUNT_CLEARANCE
+    home = torch.tensor([spec.home], dtype=torch.float64)
+    frames = chain.chain.forward_kinematics(home, end_only=False)
+    names = list(frames)
+    joints = torch.stack([(spec.base @ frames[name].get_matrix()[0])[:3, 3] for name in names])
+    wrist = spec.wrist_pose(chain, home)[0]
+    cloud = hand.point_cloud(hand.pose("open")[None].to(hand.dtype), 512).points[0].to(torch.float64)
+    cloud = cloud @ wrist[:3, :3].T + wrist[:3, 3]
+    start, line = joints[:-1], joints[1:] - joints[:-1]
+    along = ((cloud[:, None] - start) * line).sum(-1) / (line * line).sum(-1).clamp(min=1e-12)
+    closest = start + along.clamp(0.0, 1.0).unsqueeze(-1) * line  # (points, segments, 3)
+    distance, segment = (cloud[:, None] - closest).norm(dim=-1).min(dim=1)
+    flange = chain.flange_pose(home)[0, :3, 3] @ spec.base[:3, :3].T + spec.base[:3, 3]
+    inside = (distance < near) & ((closest[torch.arange(len(cloud)), segment] - flange).norm(dim=-1) > ball)
+    fraction = float(inside.float().mean())
+    if fraction > share:
+        links = sorted({names[int(i) + 1] for i in segment[inside]}, key=names.index)
+        raise ArmSpecError(
+            spec.path, "mount",
+            f"it puts the {hand.name} inside the arm ({100 * fraction:.0f} % of the hand's surface within "
+            f"{100 * near:.0f} cm of {', '.join(links)}, the arm at home); `mount` is the hand's wrist frame "
+            "in the flange frame: turn and move it so the hand points away from the flange",
+        )  # fmt: skip
 
 
 def nearest_turn(angle: Tensor, reference: Tensor) -> Tensor:
