@@ -13,7 +13,8 @@ action = normalised wrist + z, the colour camera kept, depth dropped). Rows (`--
 - `blind`: the control that cannot see the can: the same demos recorded with the task's objects drawn by
   no camera (`--robot.hide_object`; the expert still reads where the can is), merged, trained and converted
   as `cotrained`, and evaluated in the same blind scene (`--env.hide_object`).
-- `alone`: one ACT per hand trained on that hand's own joints (its recorded dataset, no GaLR).
+- `alone`: one ACT per hand trained on that hand's own joints (its recorded dataset without the depth
+  camera, no GaLR).
 
 ACT at the small size the CPU protocol allows (the exact config is written to the JSON): dim_model 256,
 feedforward 1024, 2 encoder layers, chunk 20, no pretrained backbone, batch 32, learning rate 1e-4 for the
@@ -83,6 +84,19 @@ def record(stages: Stages, hand: str, demos: int, size: int, blind: bool = False
     ]  # fmt: skip
     stages.run(f"drop_{name}", [kept], drop)
     return kept
+
+
+def colour_only(stages: Stages, hand: str, data: Path) -> Path:
+    """`hand`'s demos without the depth camera, which ACT would read as a one-channel picture (the latent
+    dataset drops it the same way)."""
+    out = stages.work / "data" / f"{hand}_colour"
+    command = [
+        str(BIN / "lerobot-edit-dataset"), f"--repo_id=local/{data.name}", f"--root={data}",
+        f"--new_repo_id=local/{out.name}", f"--new_root={out}", "--operation.type=remove_feature",
+        "--operation.feature_names=['observation.images.front_depth']",
+    ]  # fmt: skip
+    stages.run(f"colour_{hand}", [out], command)
+    return out
 
 
 def frames_of(root: Path) -> int:
@@ -242,7 +256,9 @@ def main() -> None:
             cell("blind", model, hand, "galr", "blind", args.epochs, "train_blind")
     if "alone" in rows:
         for hand in hands:
-            model = train(stages, f"alone_{hand}", data[hand], args.epochs, LEARNING_RATE)
+            model = train(
+                stages, f"alone_{hand}", colour_only(stages, hand, data[hand]), args.epochs, LEARNING_RATE
+            )
             cell(f"alone_{hand}", model, hand, "joints", "none", args.epochs, f"train_alone_{hand}")
     results = RESULTS / "stock_policies.json"
     kept = json.loads(results.read_text()) if results.exists() else {"runs": []}
