@@ -164,9 +164,11 @@ class OpfaConfig(PreTrainedConfig):
     scheduler_decay_steps: int = 100_000
 
     def __post_init__(self):
-        super().__post_init__()
-        with flag("policy"):  # refused as a `--policy.*` flag (`flags.FlagError`), its message kept
+        # refused as a `--policy.*` flag (`flags.FlagError`), its message kept; before LeRobot settles the
+        # device, so that a wrong flag is the one line it prints, not the last of LeRobot's device warnings
+        with flag("policy"):
             self._check_and_settle()
+        super().__post_init__()
 
     def _check_and_settle(self) -> None:
         self.down_dims = tuple(self.down_dims)
