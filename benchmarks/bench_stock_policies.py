@@ -26,10 +26,10 @@ model and the backbone (LeRobot's 1e-5 suits a pretrained backbone over ~100k st
 Each stage's output and wall time are kept under `--work` with the commit (`bench_rig.Stages`): an
 interrupted run resumes at the stage it stopped in, and a finished cell is not run again. Results:
 benchmarks/results/stock_policies.json (`runs` of {policy, action_space, hand, task, demos, successes,
-episodes, epochs, train_minutes, control, follows_object, following_episodes, commit}) and
+episodes, epochs, train_minutes, control, follows_object, following_episodes, outcomes, commit}) and
 stock_policies.png; the rows run replace their own runs in it and leave the other rows' (each run names
-the commit it was trained at). `follows_object` (`failures.object_following`, 20 more episodes per cell):
-whether the wrist goes where the can is.
+the commit it was trained at). `follows_object` and `outcomes` (`failures.object_following`, 20 more
+episodes per cell): whether the wrist goes where the can is, and whether a failure ever touched it.
 """
 
 from __future__ import annotations

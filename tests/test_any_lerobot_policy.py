@@ -19,7 +19,7 @@ from subprocesses import run_command, run_lerobot_here
 
 from lerobot_opfa import cli
 from lerobot_opfa.envs.config import OpfaEnvConfig
-from lerobot_opfa.experiments.failures import object_following
+from lerobot_opfa.experiments.failures import OUTCOMES, object_following
 
 ENV = {**os.environ, "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1", "MUJOCO_GL": "egl"}
 HANDS = ("umi", "inspire")
@@ -122,6 +122,7 @@ def test_a_stock_policy_trains_in_galr_space_and_lerobot_eval_runs_it_on_each_ha
     )
     following = object_following(tmp_path / "joints", env, episodes=2, seed=0)  # the stock policy's class
     assert following["following_episodes"] == 2 and math.isfinite(following["follows_object"]), following
+    assert sorted(following["outcomes"]) == sorted(OUTCOMES) and sum(following["outcomes"].values()) == 2
     interleaved_actions(tmp_path / "joints", policy, latent.parent)
 
 

@@ -97,22 +97,30 @@ def episode_outcomes(
         task=task, hand=hand, regions=",".join(regions), obs_type="pointcloud",
         pointcloud_source="geometry", n_points=n_points, episode_length=steps, arm=arm, fps=fps,
     )  # fmt: skip
-    return [
-        "success" if success else "touched_failed" if touched else "never_touched"
-        for _, success, touched in rollouts(model, config, episodes, seed)
-    ]
+    return [outcome(success, touched) for _, success, touched in rollouts(model, config, episodes, seed)]
+
+
+def outcome(success: bool, touched: bool) -> str:
+    """One of `OUTCOMES`."""
+    return "success" if success else "touched_failed" if touched else "never_touched"
 
 
 def object_following(model: Path, config: OpfaEnvConfig, episodes: int, seed: int) -> dict:
     """How far the wrist follows the object: the least-squares slope of the wrist's (x, y) at each episode's
     end on where reset placed the object, averaged over the two axes. About 1: the policy goes where the
-    object is; about 0: it goes to the same place whatever its cameras show."""
-    placed, reached = [], []
-    for env, _, _ in rollouts(model, config, episodes, seed):
+    object is; about 0: it goes to the same place whatever its cameras show. With the same episodes'
+    `outcomes` (`OUTCOMES` counted): whether a failure ever touched the object."""
+    placed, reached, outcomes = [], [], dict.fromkeys(OUTCOMES, 0)
+    for env, success, touched in rollouts(model, config, episodes, seed):
         placed.append(env.placement.xy.copy())
         reached.append(env.data.qpos[env.scene.wrist_qpos][:2].copy())
+        outcomes[outcome(success, touched)] += 1
     slopes, _ = _lines(np.array(placed), np.array(reached))
-    return {"follows_object": round(float(np.mean(slopes)), 2), "following_episodes": episodes}
+    return {
+        "follows_object": round(float(np.mean(slopes)), 2),
+        "following_episodes": episodes,
+        "outcomes": outcomes,
+    }
 
 
 def _lines(placed: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
