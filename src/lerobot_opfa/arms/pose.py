@@ -177,7 +177,7 @@ def check_mount(spec: ArmSpec, chain: ArmChain, hand: HandModel) -> None:
     along = ((cloud[:, None] - start) * line).sum(-1) / (line * line).sum(-1).clamp(min=1e-12)
     closest = start + along.clamp(0.0, 1.0).unsqueeze(-1) * line  # (points, segments, 3)
     distance, segment = (cloud[:, None] - closest).norm(dim=-1).min(dim=1)
-    flange = chain.flange_pose(home)[0, :3, 3] @ spec.base[:3, :3].T + spec.base[:3, 3]
+    flange = joints[-1]  # the chain's last frame
     inside = (distance < near) & ((closest[torch.arange(len(cloud)), segment] - flange).norm(dim=-1) > ball)
     fraction = float(inside.float().mean())
     if fraction > share:
