@@ -168,6 +168,14 @@ def convert(stages: Stages, name: str, model: Path, latent: Path) -> Path:
     return out
 
 
+def with_other_rows(kept: dict, runs: list[dict]) -> list[dict]:
+    """`runs` after the runs of the results `kept` that they do not redo (a cell is its action space,
+    control and hand), each of those naming its commit (the file's where it does not)."""
+    ran = {(r["action_space"], r["control"], r["hand"]) for r in runs}
+    others = [r for r in kept["runs"] if (r["action_space"], r["control"], r["hand"]) not in ran]
+    return [{"commit": kept.get("commit"), **r} for r in others] + runs
+
+
 def plot(runs: list[dict], path: Path) -> None:
     from matplotlib.figure import Figure
 
@@ -262,12 +270,7 @@ def main() -> None:
             cell(f"alone_{hand}", model, hand, "joints", "none", args.epochs, f"train_alone_{hand}")
     results = RESULTS / "stock_policies.json"
     kept = json.loads(results.read_text()) if results.exists() else {"runs": []}
-    ran = {(r["action_space"], r["control"], r["hand"]) for r in runs}
-    runs = [
-        {"commit": kept.get("commit"), **r}
-        for r in kept["runs"]
-        if (r["action_space"], r["control"], r["hand"]) not in ran
-    ] + runs
+    runs = with_other_rows(kept, runs)
     demos_kept = {h: episodes_of(d) for h, d in data.items()}
     report = {
         "runs": runs,

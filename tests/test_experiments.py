@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 import time
 from pathlib import Path
 
@@ -341,6 +342,40 @@ def test_a_learnability_run_keeps_the_cells_another_run_recorded_meanwhile(tmp_p
     runs = bench.record(out, {**cell, "successes": 50})
     assert sorted((r["action_space"], r["successes"]) for r in runs) == [("galr", 50), ("raw", 50)]
     assert json.loads(out.read_text()) == runs
+
+
+def test_the_stock_benchmark_resumes_past_finished_stages_and_keeps_the_other_rows_runs(tmp_path):
+    """An interrupted bench_stock_policies run starts again at the stage it stopped in (a finished stage is
+    not run again), and its results replace only the cells it ran."""
+    import importlib.util
+
+    benchmarks = Path(__file__).parents[1] / "benchmarks"
+    sys.path.insert(0, str(benchmarks))
+    try:
+        spec = importlib.util.spec_from_file_location(
+            "bench_stock_policies", benchmarks / "bench_stock_policies.py"
+        )
+        bench = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(bench)
+    finally:
+        sys.path.remove(str(benchmarks))
+    out = tmp_path / "train_blind"
+    bench.Stages(tmp_path / "work").run("train_blind", [out], [sys.executable, "-c", "print('trained')"])
+    resumed = bench.Stages(tmp_path / "work")  # a new run in the same folder
+    resumed.run("train_blind", [out], [sys.executable, "-c", "raise SystemExit(1)"])  # finished: not run
+    assert list(resumed.done) == ["train_blind"] and resumed.done["train_blind"]["wall_s"] >= 0
+    with pytest.raises(SystemExit, match="stage eval_blind_umi failed"):
+        resumed.run("eval_blind_umi", [], [sys.executable, "-c", "raise SystemExit(1)"])
+    cell = {"action_space": "galr", "hand": "umi", "control": "none", "successes": 43}
+    kept = {"commit": "800a3e6", "runs": [cell, {**cell, "control": "untrained", "successes": 0}]}
+    runs = bench.with_other_rows(kept, [{**cell, "control": "blind", "successes": 5, "commit": "abc"}])
+    assert [(r["control"], r["successes"], r["commit"]) for r in runs] == [
+        ("none", 43, "800a3e6"),
+        ("untrained", 0, "800a3e6"),
+        ("blind", 5, "abc"),
+    ]
+    redone = bench.with_other_rows(kept, [{**cell, "successes": 44, "commit": "abc"}])
+    assert [(r["control"], r["successes"]) for r in redone] == [("untrained", 0), ("none", 44)]
 
 
 def test_a_second_experiment_into_a_folder_in_use_is_refused_naming_the_run(tmp_path, capsys):
