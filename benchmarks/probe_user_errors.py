@@ -799,18 +799,27 @@ def define_probes(fx: dict[str, Path], work: Path) -> list[Probe]:  # noqa: C901
         words=["nosuch_joint"],
         absent=(w("m5") / "m",),
     )
-    add_cli(
-        "merge_inputs_at_different_fps",
-        "merge",
-        [*merge, umi, fx["umi_fps20"], "--output", w("m6") / "m"],
-        words=["fps", "umi_fps20"],
-        absent=(w("m6") / "m",),
-    )
+
+    def merged_at(root: Path, fps: int, input_fps: list[int]) -> Callable[[Outcome], str | None]:
+        def check(_: Outcome) -> str | None:
+            rate = json.loads((root / "meta" / "info.json").read_text())["fps"]
+            recorded = json.loads((root / "meta" / "opfa.json").read_text())["input_fps"]
+            return None if (rate, recorded) == (fps, input_fps) else f"{rate} fps from {recorded}"
+
+        return check
+
+    at_two_rates = [*merge, umi, fx["umi_fps20"], "--output", w("m6") / "m"]
+    probes.append(  # inputs at 10 and 20 fps merge at the lower rate (resampled), each input's kept
+        Probe(
+            "merge_inputs_at_different_fps", "merge", show(at_two_rates), "accept", cli(at_two_rates),
+            check=merged_at(w("m6") / "m", 10, [10, 20]),
+        )
+    )  # fmt: skip
     add_cli(
         "merge_sim_demos_with_synthetic_fps",
         "merge",
         [*merge, fx["demos_umi"], inspire, "--output", w("m7") / "m"],
-        words=["fps"],
+        words=["observation.environment_state", "record them alike"],
         absent=(w("m7") / "m",),
     )
     add_cli(
