@@ -20,7 +20,7 @@ ACT at the small size the CPU protocol allows (the exact config is written to th
 feedforward 1024, 2 encoder layers, chunk 20, no pretrained backbone, batch 32, learning rate 1e-4 for the
 model and the backbone (LeRobot's 1e-5 suits a pretrained backbone over ~100k steps). One torch thread.
 
-    MUJOCO_GL=egl .venv/bin/python benchmarks/bench_stock_policies.py [--rows cotrained,untrained,blind]
+    MUJOCO_GL=egl .venv/bin/python benchmarks/bench_stock_policies.py [--rows cotrained,untrained,blind,alone]
         [--demos 20] [--epochs 40] [--episodes 50] [--work outputs/stock]
 
 Each stage's output and wall time are kept under `--work` with the commit (`bench_rig.Stages`): an
@@ -207,7 +207,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--rows", default="cotrained,untrained", help="cotrained, untrained, blind, alone")
+    parser.add_argument("--rows", default="cotrained,untrained,blind,alone", help="comma-separated rows")
     parser.add_argument("--hands", default="umi,inspire")
     parser.add_argument("--demos", type=int, default=20)
     parser.add_argument("--epochs", type=int, default=40)
